@@ -1,0 +1,36 @@
+"""belief_nlp: minimum-sensing path planning in Gaussian belief space.
+
+Plan with IG-RRT*, smooth with the convex-concave procedure (or IPOPT), and
+verify every path independently. See README.md for a tour.
+"""
+
+from __future__ import annotations
+
+from . import belief, geometry
+from .errors import (BeliefNLPError, InfeasibleStartError, ScenarioFileError, SolverError,
+                     ValidationError)
+from .path import BeliefPath
+from .polytope import Polytope
+from .scenario import Scenario, list_scenarios, load_scenario, save_scenario, scenario_from_dict
+from .verify import VerificationReport, verify
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "BeliefNLPError",
+    "BeliefPath",
+    "InfeasibleStartError",
+    "Polytope",
+    "Scenario",
+    "ScenarioFileError",
+    "SolverError",
+    "ValidationError",
+    "VerificationReport",
+    "belief",
+    "geometry",
+    "list_scenarios",
+    "load_scenario",
+    "save_scenario",
+    "scenario_from_dict",
+    "verify",
+]

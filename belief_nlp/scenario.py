@@ -1,0 +1,370 @@
+"""Scenarios: domain, obstacles, target, start belief and noise, validated once.
+
+File schema (TOML or JSON, the same tree in both)::
+
+    name = "paper-multi"            # optional, string
+    description = "..."             # optional, string
+    confidence = 0.9                # or chi2 = 4.605 (not both); default 0.9
+    alpha = 0.1                     # information weight (cost = control + alpha * info)
+
+    [start]
+    x = [0.15, 0.5]                 # mean, metres
+    P = [[1e-9, 0.0], [0.0, 1e-9]]  # covariance, m^2; a scalar s means s*I,
+                                    # a flat list of d numbers a diagonal
+    [noise]
+    W = 0.2e-3                      # process noise per time step (smoother), m^2
+    W_rate = 1e-3                   # noise per metre travelled (planner), m^2/m
+
+    [domain]                        # every polytope takes exactly one of:
+    box = { lower = [0, 0], upper = [1, 1] }
+    # vertices = [[x, y], ...]      #   2-D convex polygon, either orientation
+    # A = [[...]], b = [...]        #   half-spaces A y <= b
+
+    [target]
+    box = { lower = [0.6, 0.0], upper = [0.7, 0.1] }
+
+    [[obstacles]]                   # zero or more
+    name = "obstacle 1"             # optional
+    vertices = [[0.145, 0.40], [0.105, 0.34], [0.225, 0.30], [0.225, 0.36]]
+
+    [horizon]                       # optional default for the smoother
+    K = 20
+
+    [planner]                       # optional defaults passed to the planner
+    max_radius = 0.3
+
+All lengths in metres. ``chi2`` is the ``confidence`` quantile of the chi-square
+law with ``d`` degrees of freedom unless given directly.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from functools import cached_property
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import ScenarioFileError, ValidationError
+from .polytope import Polytope, _as_finite_array
+
+__all__ = ["Scenario", "load_scenario", "save_scenario", "list_scenarios", "scenario_from_dict"]
+
+_BUILTIN_PACKAGE = "belief_nlp.scenarios"
+
+
+def _covariance(value: Any, d: int, field_name: str, allow_singular: bool) -> np.ndarray:
+    """Parse a scalar / diagonal / full matrix and check symmetry and definiteness."""
+    arr = np.array(value, dtype=float) if not isinstance(value, np.ndarray) else value.astype(float)
+    if arr.ndim == 0:
+        arr = float(arr) * np.eye(d)
+    elif arr.ndim == 1:
+        if arr.size != d:
+            raise ValidationError(field_name, f"diagonal must have {d} entries, got {arr.size}")
+        arr = np.diag(arr)
+    if arr.shape != (d, d):
+        raise ValidationError(field_name, f"must be a {d}x{d} matrix, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValidationError(field_name, "contains NaN or infinite values")
+    scale = max(float(np.max(np.abs(arr))), 1e-300)
+    if not np.allclose(arr, arr.T, rtol=0, atol=1e-12 * scale):
+        raise ValidationError(field_name, "covariance is not symmetric")
+    eig = np.linalg.eigvalsh(0.5 * (arr + arr.T))
+    if allow_singular:
+        if eig[0] < -1e-12 * scale:
+            raise ValidationError(field_name, f"covariance is not positive semidefinite (eigenvalue {eig[0]:.3g})")
+    elif eig[0] <= 0:
+        raise ValidationError(field_name, f"covariance is not positive definite (smallest eigenvalue {eig[0]:.3g})")
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    """A validated planning problem. Build with :func:`scenario_from_dict`,
+    :func:`load_scenario` or the constructor (which validates too).
+
+    Attributes
+    ----------
+    domain, target : Polytope
+    obstacles : tuple of Polytope
+    x0 : (d,) start mean; P0 : (d, d) start covariance (positive semidefinite)
+    W : (d, d) process noise per time step (smoother's model, paper eq. 2)
+    W_rate : (d, d) process noise per metre travelled (the authors' planner)
+    alpha : information weight
+    confidence : confidence level of the ellipses; ``chi2`` the matching quantile
+    K : default horizon of the smoother, or None
+    planner : default keyword options for the planner
+    """
+
+    domain: Polytope
+    target: Polytope
+    obstacles: tuple[Polytope, ...]
+    x0: np.ndarray
+    P0: np.ndarray
+    W: np.ndarray
+    W_rate: np.ndarray
+    alpha: float = 0.1
+    confidence: float | None = 0.9
+    chi2_value: float | None = None
+    K: int | None = None
+    planner: dict = field(default_factory=dict)
+    name: str = ""
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        _validate(self)
+
+    # ------------------------------------------------------------------ basics
+    @property
+    def dim(self) -> int:
+        return self.domain.dim
+
+    @cached_property
+    def chi2(self) -> float:
+        """Squared radius of the confidence ellipses {y : (y-x)^T P^-1 (y-x) <= chi2}."""
+        if self.chi2_value is not None:
+            return float(self.chi2_value)
+        from scipy.stats import chi2 as chi2_law
+
+        return float(chi2_law.ppf(self.confidence, self.dim))
+
+    @cached_property
+    def walls(self) -> tuple[Polytope, ...]:
+        """The outside of the domain as half-space obstacles (paper's X_out^l)."""
+        return tuple(self.domain.complement_halfspaces("wall"))
+
+    @cached_property
+    def hazards(self) -> tuple[Polytope, ...]:
+        """Everything a confidence ellipse must avoid: obstacles, then walls (J = M + L)."""
+        return tuple(self.obstacles) + self.walls
+
+    def with_options(self, **changes: Any) -> "Scenario":
+        """A copy with some fields replaced (validated again)."""
+        data = {f: getattr(self, f) for f in self.__dataclass_fields__}
+        data.update(changes)
+        return Scenario(**data)
+
+    # ------------------------------------------------------------- serialise
+    def to_dict(self) -> dict:
+        out: dict[str, Any] = {}
+        if self.name:
+            out["name"] = self.name
+        if self.description:
+            out["description"] = self.description
+        if self.chi2_value is not None:
+            out["chi2"] = float(self.chi2_value)
+        else:
+            out["confidence"] = float(self.confidence)
+        out["alpha"] = float(self.alpha)
+        out["start"] = {"x": self.x0.tolist(), "P": self.P0.tolist()}
+        out["noise"] = {"W": self.W.tolist(), "W_rate": self.W_rate.tolist()}
+        out["domain"] = self.domain.to_dict()
+        out["target"] = self.target.to_dict()
+        out["obstacles"] = [o.to_dict() for o in self.obstacles]
+        if self.K is not None:
+            out["horizon"] = {"K": int(self.K)}
+        if self.planner:
+            out["planner"] = dict(self.planner)
+        return out
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Scenario):
+            return NotImplemented
+        return self.to_dict() == other.to_dict()
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return (f"Scenario({self.name!r}, dim={self.dim}, obstacles={len(self.obstacles)}, "
+                f"chi2={self.chi2:.4g}, alpha={self.alpha:g})")
+
+
+# ---------------------------------------------------------------- validation
+def _validate(sc: Scenario) -> None:
+    """All checks in one place; raises ValidationError naming the field."""
+    if not isinstance(sc.domain, Polytope) or not sc.domain.bounded:
+        raise ValidationError("domain", "must be a bounded convex polytope")
+    d = sc.domain.dim
+    if d not in (2, 3):
+        raise ValidationError("domain", f"only 2-D and 3-D scenarios are supported, got dimension {d}")
+    if not isinstance(sc.target, Polytope) or not sc.target.bounded:
+        raise ValidationError("target", "must be a bounded convex polytope")
+    if sc.target.dim != d:
+        raise ValidationError("target", f"dimension {sc.target.dim} does not match the domain's {d}")
+    for i, ob in enumerate(sc.obstacles):
+        if not isinstance(ob, Polytope):
+            raise ValidationError(f"obstacles[{i}]", "must be a Polytope")
+        if ob.dim != d:
+            raise ValidationError(f"obstacles[{i}]", f"dimension {ob.dim} does not match the domain's {d}")
+        if not ob.bounded:
+            raise ValidationError(f"obstacles[{i}]", "must be bounded")
+    object.__setattr__(sc, "obstacles", tuple(
+        ob if ob.name else Polytope(ob.A, ob.b, ob.vertices, f"obstacle {i + 1}", ob.spec)
+        for i, ob in enumerate(sc.obstacles)))
+
+    x0 = _as_finite_array(sc.x0, "start.x", 1)
+    if x0.size != d:
+        raise ValidationError("start.x", f"must have {d} entries, got {x0.size}")
+    object.__setattr__(sc, "x0", x0)
+    object.__setattr__(sc, "P0", _covariance(sc.P0, d, "start.P", allow_singular=True))
+    object.__setattr__(sc, "W", _covariance(sc.W, d, "noise.W", allow_singular=False))
+    object.__setattr__(sc, "W_rate", _covariance(sc.W_rate, d, "noise.W_rate", allow_singular=False))
+
+    if not isinstance(sc.alpha, (int, float)) or not math.isfinite(sc.alpha) or sc.alpha < 0:
+        raise ValidationError("alpha", f"must be a finite number >= 0, got {sc.alpha!r}")
+    object.__setattr__(sc, "alpha", float(sc.alpha))
+    if sc.chi2_value is not None:
+        if not isinstance(sc.chi2_value, (int, float)) or not math.isfinite(sc.chi2_value) or sc.chi2_value <= 0:
+            raise ValidationError("chi2", f"must be a finite number > 0, got {sc.chi2_value!r}")
+        object.__setattr__(sc, "confidence", None)
+    else:
+        c = sc.confidence
+        if not isinstance(c, (int, float)) or not math.isfinite(c) or not 0 < c < 1:
+            raise ValidationError("confidence", f"must lie strictly between 0 and 1, got {c!r}")
+    if sc.K is not None and (not isinstance(sc.K, (int, np.integer)) or isinstance(sc.K, bool) or sc.K < 1):
+        raise ValidationError("horizon.K", f"must be a positive integer, got {sc.K!r}")
+    if not isinstance(sc.planner, dict):
+        raise ValidationError("planner", "must be a table of planner options")
+
+    # target inside the domain
+    slack = sc.domain.b[None, :] - sc.target.vertices @ sc.domain.A.T
+    if np.min(slack) < -1e-12:
+        raise ValidationError("target", "target is not inside the domain")
+    # start ellipse inside the domain and clear of every obstacle
+    from .geometry import containment_margin, ellipse_clearance
+
+    if containment_margin(x0, sc.P0, sc.domain.A, sc.domain.b, sc.chi2) < 0:
+        raise ValidationError("start", "start confidence ellipse is not inside the domain")
+    for ob in sc.obstacles:
+        if ellipse_clearance(x0, sc.P0, ob.A, ob.b, sc.chi2) < 0:
+            raise ValidationError("start", f"start confidence ellipse is not clear of {ob.name}")
+
+
+# -------------------------------------------------------------------- files
+def scenario_from_dict(data: Any, source: str = "scenario") -> Scenario:
+    """Build a :class:`Scenario` from the schema in this module's docstring."""
+    if not isinstance(data, dict):
+        raise ScenarioFileError("", f"{source}: top level must be a table/object")
+    known = {"name", "description", "confidence", "chi2", "alpha", "start", "noise", "domain",
+             "target", "obstacles", "horizon", "planner"}
+    unknown = set(data) - known
+    if unknown:
+        raise ScenarioFileError(sorted(unknown)[0], f"unknown key in {source}")
+    for key in ("start", "noise", "domain", "target"):
+        if key not in data:
+            raise ScenarioFileError(key, f"missing in {source}")
+    if "confidence" in data and "chi2" in data:
+        raise ScenarioFileError("chi2", "give either 'confidence' or 'chi2', not both")
+
+    def table(key: str, required: tuple[str, ...]) -> dict:
+        t = data[key]
+        if not isinstance(t, dict):
+            raise ScenarioFileError(key, "must be a table/object")
+        for r in required:
+            if r not in t:
+                raise ScenarioFileError(f"{key}.{r}", "missing")
+        return t
+
+    start = table("start", ("x", "P"))
+    noise = table("noise", ("W",))
+    obstacles = data.get("obstacles", [])
+    if not isinstance(obstacles, list):
+        raise ScenarioFileError("obstacles", "must be an array of tables")
+    horizon = data.get("horizon", {})
+    if not isinstance(horizon, dict):
+        raise ScenarioFileError("horizon", "must be a table")
+    domain = Polytope.from_dict(data["domain"], "domain")
+    d = domain.dim
+    try:
+        W = noise["W"]
+        return Scenario(
+            domain=domain,
+            target=Polytope.from_dict(data["target"], "target"),
+            obstacles=tuple(Polytope.from_dict(o, f"obstacles[{i}]") for i, o in enumerate(obstacles)),
+            x0=np.array(start["x"], dtype=float) if _is_numeric(start["x"]) else _bad("start.x", start["x"]),
+            P0=_matrix_field(start["P"], d, "start.P"),
+            W=_matrix_field(W, d, "noise.W"),
+            W_rate=_matrix_field(noise.get("W_rate", W), d, "noise.W_rate"),
+            alpha=data.get("alpha", 0.1),
+            confidence=data.get("confidence", 0.9),
+            chi2_value=data.get("chi2"),
+            K=horizon.get("K"),
+            planner=dict(data.get("planner", {})) if isinstance(data.get("planner", {}), dict)
+            else _bad("planner", data.get("planner")),
+            name=str(data.get("name", "")),
+            description=str(data.get("description", "")),
+        )
+    except ValidationError:
+        raise
+    except (TypeError, ValueError) as exc:  # pragma: no cover - defensive
+        raise ScenarioFileError("", f"{source}: {exc}") from exc
+
+
+def _is_numeric(v: Any) -> bool:
+    try:
+        np.array(v, dtype=float)
+        return True
+    except (TypeError, ValueError):
+        return False
+
+
+def _bad(field_name: str, value: Any) -> Any:
+    raise ScenarioFileError(field_name, f"invalid value {value!r}")
+
+
+def _matrix_field(v: Any, d: int, field_name: str) -> np.ndarray:
+    if not _is_numeric(v):
+        _bad(field_name, v)
+    return _covariance(v, d, field_name, allow_singular=field_name == "start.P")
+
+
+def list_scenarios() -> list[str]:
+    """Names of the built-in scenarios."""
+    files = resources.files(_BUILTIN_PACKAGE).iterdir()
+    return sorted(p.name[:-5] for p in files if p.name.endswith(".toml"))
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """Load a built-in scenario by name, or a ``.toml`` / ``.json`` file."""
+    if isinstance(name_or_path, Scenario):
+        return name_or_path
+    text_name = str(name_or_path)
+    path = Path(text_name)
+    if path.suffix.lower() in (".toml", ".json") or path.exists():
+        if not path.exists():
+            raise ScenarioFileError("path", f"no such scenario file: {text_name}")
+        raw = path.read_bytes()
+        fmt = "json" if path.suffix.lower() == ".json" else "toml"
+        return _parse(raw, fmt, text_name)
+    if text_name in list_scenarios():
+        raw = resources.files(_BUILTIN_PACKAGE).joinpath(f"{text_name}.toml").read_bytes()
+        return _parse(raw, "toml", text_name)
+    raise ScenarioFileError("name", f"unknown scenario {text_name!r}; built-ins: {', '.join(list_scenarios())}")
+
+
+def _parse(raw: bytes, fmt: str, source: str) -> Scenario:
+    try:
+        data = json.loads(raw) if fmt == "json" else tomllib.loads(raw.decode("utf-8"))
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ScenarioFileError("", f"{source}: malformed {fmt.upper()}: {exc}") from exc
+    return scenario_from_dict(data, source)
+
+
+def save_scenario(scenario: Scenario, path: str | Path) -> Path:
+    """Write ``scenario`` as TOML or JSON (by suffix); :func:`load_scenario` reads it back equal."""
+    path = Path(path)
+    data = scenario.to_dict()
+    if path.suffix.lower() == ".json":
+        path.write_text(json.dumps(data, indent=2))
+    elif path.suffix.lower() == ".toml":
+        import tomli_w
+
+        path.write_text(tomli_w.dumps(data))
+    else:
+        raise ValidationError("path", f"scenario files end in .toml or .json, got {path.suffix!r}")
+    return path

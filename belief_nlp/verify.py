@@ -1,0 +1,259 @@
+"""Independent verification of a belief path against a scenario.
+
+This module deliberately shares no distance code with :mod:`belief_nlp.geometry`:
+
+* transitions are checked by dense sampling of s in [0, 1] (plus a refined
+  grid around the worst sample), each sample checked exactly;
+* 2-D polygons: whitened vertices, point-to-segment distances and a winding
+  test; half-spaces: closed form; other polytopes: the least-distance problem
+  solved by non-negative least squares (Lawson & Hanson's LDP via
+  ``scipy.optimize.nnls``);
+* target containment by the support function from an eigendecomposition.
+
+Sampling can only overestimate the minimum over s, so the refinement grid and
+the tolerance below matter; the exact minimisation lives in geometry.py and
+tests compare the two.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import nnls
+
+from . import belief
+from .path import BeliefPath
+from .polytope import Polytope
+from .scenario import Scenario
+
+__all__ = ["verify", "VerificationReport"]
+
+
+@dataclass
+class VerificationReport:
+    """Outcome of :func:`verify`.
+
+    Margins are "squared Mahalanobis distance minus chi2" (>= 0 is safe)
+    unless stated otherwise.
+
+    Attributes
+    ----------
+    safe : every check passed within ``tol``.
+    min_margin : smallest safety margin over all transitions, hazards and
+        target faces (target faces converted to the same unit).
+    worst : human-readable name of the worst offender.
+    transition_margins : (K, J) min over sampled s, per transition and hazard
+        (obstacles first, then domain walls; names in ``hazard_names``).
+    target_margins_m : (N,) b_n - a_n^T x_K - sqrt(chi2 a_n^T P_K a_n), metres.
+    kalman_residual : (K,) relative error of P_k against (P_prior_k^-1 + S_k)^-1.
+    sensing_min_eig : (K,) smallest eigenvalue of S_k relative to its norm.
+    noise_residual : (K,) relative error of P_prior_k - P_{k-1} against the
+        scenario's noise model.
+    start_residual : relative error of (x_0, P_0) against the scenario's start.
+    problems : list of the failed checks, in words.
+    """
+
+    safe: bool
+    min_margin: float
+    worst: str
+    transition_margins: np.ndarray
+    hazard_names: list[str]
+    target_margins_m: np.ndarray
+    kalman_residual: np.ndarray
+    sensing_min_eig: np.ndarray
+    noise_residual: np.ndarray
+    start_residual: float
+    tol: float
+    problems: list[str] = field(default_factory=list)
+
+    def __bool__(self) -> bool:
+        return self.safe
+
+    def summary(self) -> str:
+        head = "SAFE" if self.safe else "UNSAFE"
+        lines = [f"{head}: min margin {self.min_margin:.4g} (worst: {self.worst})"]
+        lines += [f"  - {p}" for p in self.problems]
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        return {
+            "safe": self.safe,
+            "min_margin": self.min_margin,
+            "worst": self.worst,
+            "problems": list(self.problems),
+            "max_kalman_residual": float(np.max(self.kalman_residual, initial=0.0)),
+            "min_target_margin_m": float(np.min(self.target_margins_m)),
+        }
+
+
+# ----------------------------------------------------------------- distances
+def _chol(P: np.ndarray) -> np.ndarray:
+    d = P.shape[-1]
+    jitter = 1e-30 * np.eye(d)
+    return np.linalg.cholesky(0.5 * (P + np.swapaxes(P, -1, -2)) + jitter)
+
+
+def _sqdist_halfspace(x: np.ndarray, P: np.ndarray, a: np.ndarray, beta: float) -> np.ndarray:
+    """Samples (n, d), (n, d, d) to the obstacle {a^T y <= beta}."""
+    t = x @ a - beta
+    aPa = np.einsum("i,nij,j->n", a, P, a) + 1e-30
+    return np.where(t <= 0, 0.0, t * t / aPa)
+
+
+def _sqdist_polygon(x: np.ndarray, P: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """Samples (n, 2), (n, 2, 2) to a convex polygon with CCW vertices V (v, 2)."""
+    L = _chol(P)
+    # whitened vertices w = L^-1 (v - x): solve per sample
+    rel = V[None, :, :] - x[:, None, :]                                   # (n, v, 2)
+    a, c, d_ = L[:, 0, 0], L[:, 1, 0], L[:, 1, 1]
+    w0 = rel[..., 0] / a[:, None]
+    w1 = (rel[..., 1] - c[:, None] * w0) / d_[:, None]
+    W = np.stack([w0, w1], axis=-1)                                       # (n, v, 2)
+    E = np.roll(W, -1, axis=1) - W                                        # edges
+    # origin inside iff it lies left of (or on) every CCW edge (whitening keeps orientation: det L > 0)
+    cross = E[..., 0] * (-W[..., 1]) - E[..., 1] * (-W[..., 0])
+    inside = np.all(cross >= 0, axis=1)
+    t = np.clip(-np.einsum("nvi,nvi->nv", W, E) / np.maximum(np.einsum("nvi,nvi->nv", E, E), 1e-300), 0, 1)
+    Q = W + t[..., None] * E
+    dist2 = np.min(np.einsum("nvi,nvi->nv", Q, Q), axis=1)
+    return np.where(inside, 0.0, dist2)
+
+
+def _sqdist_ldp(x: np.ndarray, P: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Least-distance programming via NNLS, one sample at a time.
+
+    min ||u||^2 s.t. (A L) u <= b - A x. Lawson-Hanson: with G = -(A L),
+    h = -(b - A x), solve NNLS min ||E w - f||, E = [G^T; h^T], f = e_{d+1};
+    then u = -r[:d] / r[d] with r = E w - f (infeasible when r = 0).
+    """
+    out = np.empty(x.shape[0])
+    d = x.shape[1]
+    f = np.zeros(d + 1)
+    f[-1] = 1.0
+    for i in range(x.shape[0]):
+        L = _chol(P[i])
+        c = b - A @ x[i]
+        if np.all(c >= 0):
+            out[i] = 0.0
+            continue
+        G = -(A @ L)
+        h = -c
+        E = np.vstack([G.T, h[None, :]])
+        w, _ = nnls(E, f, maxiter=50 * (A.shape[0] + d))
+        r = E @ w - f
+        if abs(r[-1]) < 1e-300:
+            out[i] = np.inf
+            continue
+        u = -r[:d] / r[-1]
+        out[i] = float(u @ u)
+    return out
+
+
+def _sqdist(x: np.ndarray, P: np.ndarray, poly: Polytope) -> np.ndarray:
+    if poly.n_faces == 1:
+        return _sqdist_halfspace(x, P, poly.A[0], float(poly.b[0]))
+    if poly.dim == 2 and poly.vertices is not None:
+        return _sqdist_polygon(x, P, poly.vertices)
+    return _sqdist_ldp(x, P, poly.A, poly.b)
+
+
+def _support(P: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """||P^1/2 a|| for each row a of A, via eigendecomposition."""
+    w, V = np.linalg.eigh(0.5 * (P + P.T))
+    R = (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
+    return np.linalg.norm(A @ R, axis=1)
+
+
+# ------------------------------------------------------------------ verify
+def verify(scenario: Scenario, path: BeliefPath, n_samples: int = 101, n_refine: int = 41,
+           tol: float = 1e-6) -> VerificationReport:
+    """Check a belief path for safety and consistency, independently of the solvers.
+
+    Parameters
+    ----------
+    n_samples : samples of s in [0, 1] per transition (endpoints included).
+    n_refine : extra samples in the interval on each side of the worst sample.
+    tol : margins >= -tol * chi2 count as clear. Relative residuals of the
+        Kalman recursion and of the noise model must be <= 1e-6.
+    """
+    if path.dim != scenario.dim:
+        raise ValueError(f"path dimension {path.dim} does not match scenario dimension {scenario.dim}")
+    chi2 = scenario.chi2
+    hazards = list(scenario.hazards)
+    names = [h.name for h in hazards]
+    K = path.K
+    Wk = path.transition_noise
+    s = np.linspace(0.0, 1.0, n_samples)
+    margins = np.empty((K, len(hazards)))
+    for j, h in enumerate(hazards):
+        xs = path.x[:-1, None, :] + s[None, :, None] * np.diff(path.x, axis=0)[:, None, :]
+        Ps = path.P[:-1, None] + s[None, :, None, None] * Wk[:, None]
+        vals = _sqdist(xs.reshape(-1, scenario.dim), Ps.reshape(-1, scenario.dim, scenario.dim), h)
+        vals = vals.reshape(K, n_samples)
+        # refine around the worst sample of each transition
+        i = np.argmin(vals, axis=1)
+        lo = s[np.maximum(i - 1, 0)]
+        hi = s[np.minimum(i + 1, n_samples - 1)]
+        r = lo[:, None] + np.linspace(0, 1, n_refine)[None, :] * (hi - lo)[:, None]
+        xr = path.x[:-1, None, :] + r[..., None] * np.diff(path.x, axis=0)[:, None, :]
+        Pr = path.P[:-1, None] + r[..., None, None] * Wk[:, None]
+        vr = _sqdist(xr.reshape(-1, scenario.dim), Pr.reshape(-1, scenario.dim, scenario.dim), h)
+        margins[:, j] = np.minimum(vals.min(axis=1), vr.reshape(K, n_refine).min(axis=1)) - chi2
+
+    problems: list[str] = []
+    atol = tol * chi2
+    # target containment of the final posterior
+    T = scenario.target
+    xK, PK = path.x[-1], path.P[-1]
+    t_m = T.b - T.A @ xK - np.sqrt(chi2) * _support(PK, T.A)
+    aPa = np.einsum("fi,ij,fj->f", T.A, PK, T.A) + 1e-30
+    slack = T.b - T.A @ xK
+    t_maha = np.sign(slack) * slack**2 / aPa - chi2
+    # Kalman consistency and sensing
+    kal = np.zeros(K)
+    smin = np.zeros(K)
+    for k in range(1, K + 1):
+        Pk = belief.update(path.P_prior[k], path.S[k])
+        kal[k - 1] = np.linalg.norm(Pk - path.P[k]) / max(np.linalg.norm(path.P[k]), 1e-300)
+        Sn = np.linalg.norm(path.S[k])
+        smin[k - 1] = np.linalg.eigvalsh(path.S[k])[0] / Sn if Sn > 0 else 0.0
+    # noise model
+    if path.noise == "per_step":
+        W_model = np.broadcast_to(scenario.W, Wk.shape)
+    else:
+        lengths = np.linalg.norm(np.diff(path.x, axis=0), axis=1)
+        W_model = lengths[:, None, None] * scenario.W_rate[None]
+    noise_res = np.linalg.norm(Wk - W_model, axis=(1, 2)) / np.maximum(np.linalg.norm(W_model, axis=(1, 2)), 1e-300)
+    start_res = float(max(np.linalg.norm(path.x[0] - scenario.x0) / (1 + np.linalg.norm(scenario.x0)),
+                          np.linalg.norm(path.P[0] - scenario.P0) / max(np.linalg.norm(scenario.P0), 1e-300)
+                          if np.linalg.norm(scenario.P0) > 0 else np.linalg.norm(path.P[0])))
+
+    worst_idx = np.unravel_index(np.argmin(margins), margins.shape) if margins.size else None
+    min_trans = float(margins[worst_idx]) if worst_idx is not None else np.inf
+    min_target = float(np.min(t_maha))
+    if min_trans <= min_target:
+        min_margin = min_trans
+        worst = f"transition {worst_idx[0] + 1} vs {names[worst_idx[1]]}"
+    else:
+        min_margin = min_target
+        worst = f"target face {int(np.argmin(t_maha))} (final ellipse containment)"
+    bad = np.argwhere(margins < -atol)
+    for k, j in bad[:20]:
+        problems.append(f"transition {k + 1} collides with {names[j]} (margin {margins[k, j]:.4g})")
+    if len(bad) > 20:
+        problems.append(f"... and {len(bad) - 20} more colliding transition/hazard pairs")
+    for n_ in np.nonzero(t_maha < -atol)[0]:
+        problems.append(f"final ellipse leaves the target across face {n_} ({t_m[n_]:.3g} m)")
+    for k in np.nonzero(kal > 1e-6)[0]:
+        problems.append(f"P_{k + 1} is not the Kalman update of P_prior_{k + 1} and S_{k + 1} (rel. err {kal[k]:.3g})")
+    for k in np.nonzero(smin < -1e-8)[0]:
+        problems.append(f"S_{k + 1} is not positive semidefinite (min eig / norm {smin[k]:.3g})")
+    for k in np.nonzero(noise_res > 1e-6)[0]:
+        problems.append(f"transition {k + 1} noise does not match the scenario's {path.noise} model (rel. err {noise_res[k]:.3g})")
+    if start_res > 1e-9:
+        problems.append(f"path does not start at the scenario's start belief (rel. err {start_res:.3g})")
+    return VerificationReport(
+        safe=not problems, min_margin=min_margin, worst=worst, transition_margins=margins,
+        hazard_names=names, target_margins_m=t_m, kalman_residual=kal, sensing_min_eig=smin,
+        noise_residual=noise_res, start_residual=start_res, tol=tol, problems=problems)
