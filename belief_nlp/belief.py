@@ -56,13 +56,20 @@ def update(P_prior, S):
     """Posterior after sensing with information S >= 0: (P_prior^-1 + S)^-1.
 
     Computed as L (I + L^T S L)^-1 L^T with P_prior = L L^T, so a tiny or
-    singular prior (P0 = 1e-9 I or 0) never gets inverted.
+    singular prior (P0 = 1e-9 I or 0) never gets inverted. Where S is exactly
+    zero the prior is returned unchanged.
     """
     P_prior = np.asarray(P_prior, dtype=float)
     S = np.asarray(S, dtype=float)
     L = _chol_psd(P_prior)
     M = _eye_like(P_prior) + np.swapaxes(L, -1, -2) @ S @ L
-    return _sym(L @ np.linalg.solve(M, np.swapaxes(L, -1, -2)))
+    out = _sym(L @ np.linalg.solve(M, np.swapaxes(L, -1, -2)))
+    # No measurement (S exactly 0): the posterior is the prior, bit for bit,
+    # so such steps carry exactly zero information cost.
+    no_sensing = np.all(S == 0, axis=(-2, -1))
+    if np.any(no_sensing):
+        out = np.where(no_sensing[..., None, None], P_prior, out)
+    return out
 
 
 def _chol_psd(P: np.ndarray) -> np.ndarray:
@@ -155,23 +162,46 @@ def _sqrtm_psd(P: np.ndarray) -> np.ndarray:
     return (V * np.sqrt(np.maximum(w, 0.0))[..., None, :]) @ np.swapaxes(V, -1, -2)
 
 
-def wasserstein_distance(P1, P2):
-    """Covariance part of the 2-Wasserstein distance between Gaussians (metres):
+def wasserstein_distance(P1, P2, x1=None, x2=None):
+    """2-Wasserstein distance between N(x1, P1) and N(x2, P2), in metres.
 
-    sqrt(tr P1 + tr P2 - 2 tr (P2^1/2 P1 P2^1/2)^1/2).
+    sqrt(||x1 - x2||^2 + tr P1 + tr P2 - 2 tr (P2^1/2 P1 P2^1/2)^1/2); without
+    means (the default) only the covariance (Bures) part.
     """
     P1 = np.asarray(P1, dtype=float)
     P2 = np.asarray(P2, dtype=float)
     R = _sqrtm_psd(P2)
     cross = np.trace(_sqrtm_psd(R @ P1 @ R), axis1=-2, axis2=-1)
     val = np.trace(P1, axis1=-2, axis2=-1) + np.trace(P2, axis1=-2, axis2=-1) - 2 * cross
-    return np.sqrt(np.maximum(val, 0.0))
+    val = np.maximum(val, 0.0)
+    if x1 is not None or x2 is not None:
+        dx = _mean_difference(x1, x2)
+        val = val + np.sum(dx * dx, axis=-1)
+    return np.sqrt(val)
 
 
-def hellinger_distance(P1, P2):
-    """Hellinger distance between zero-mean Gaussians N(0, P1) and N(0, P2), in [0, 1]."""
+def _mean_difference(x1, x2) -> np.ndarray:
+    if x1 is None or x2 is None:
+        raise ValueError("give both means x1 and x2, or neither")
+    return np.asarray(x1, dtype=float) - np.asarray(x2, dtype=float)
+
+
+def hellinger_distance(P1, P2, x1=None, x2=None):
+    """Hellinger distance between N(x1, P1) and N(x2, P2), in [0, 1].
+
+    H^2 = 1 - BC with the Bhattacharyya coefficient
+    BC = det(P1)^1/4 det(P2)^1/4 / det(Pm)^1/2 exp(-1/8 dx^T Pm^-1 dx),
+    Pm = (P1 + P2)/2; zero-mean Gaussians when the means are omitted.
+    Both covariances must be positive definite.
+    """
     P1 = np.asarray(P1, dtype=float)
     P2 = np.asarray(P2, dtype=float)
     Pm = 0.5 * (P1 + P2)
     log_bc = 0.25 * logdet(P1) + 0.25 * logdet(P2) - 0.5 * logdet(Pm)
-    return np.sqrt(np.maximum(1.0 - np.exp(log_bc), 0.0))
+    if x1 is not None or x2 is not None:
+        dx = _mean_difference(x1, x2)
+        dx_b = np.broadcast_to(dx, Pm.shape[:-1])
+        sol = np.linalg.solve(Pm, dx_b[..., None])[..., 0]
+        log_bc = log_bc - 0.125 * np.sum(dx_b * sol, axis=-1)
+    # 1 - exp(t) via expm1: no cancellation when the two are nearly equal.
+    return np.sqrt(np.maximum(-np.expm1(log_bc), 0.0))

@@ -17,6 +17,23 @@ __all__ = ["BeliefPath", "NOISE_MODELS"]
 NOISE_MODELS = ("per_step", "per_metre")
 
 
+def _float_array(value: Any, field_name: str) -> np.ndarray:
+    try:
+        raw = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise ValidationError(field_name, f"must be a rectangular array of numbers: {exc}") from exc
+    if raw.dtype.kind not in "iuf":
+        raise ValidationError(field_name, f"must be an array of numbers, got dtype {raw.dtype}")
+    return raw.astype(float)
+
+
+def _means(x: Any) -> np.ndarray:
+    x = _float_array(x, "x")
+    if x.ndim != 2 or x.shape[0] < 2:
+        raise ValidationError("x", f"must have shape (K+1, d) with K >= 1, got {x.shape}")
+    return x
+
+
 @dataclass(eq=False)
 class BeliefPath:
     """A discrete belief path (x_k, P_k), k = 0..K.
@@ -44,10 +61,14 @@ class BeliefPath:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.x = np.asarray(self.x, dtype=float)
-        self.P = np.asarray(self.P, dtype=float)
-        self.P_prior = np.asarray(self.P_prior, dtype=float)
-        self.S = np.asarray(self.S, dtype=float)
+        self.x = _float_array(self.x, "path.x")
+        self.P = _float_array(self.P, "path.P")
+        self.P_prior = _float_array(self.P_prior, "path.P_prior")
+        self.S = _float_array(self.S, "path.S")
+        if self.meta is None:
+            self.meta = {}
+        if not isinstance(self.meta, dict):
+            raise ValidationError("path.meta", f"must be a dict, got {type(self.meta).__name__}")
         if self.x.ndim != 2:
             raise ValidationError("path.x", f"must have shape (K+1, d), got {self.x.shape}")
         n, d = self.x.shape
@@ -72,15 +93,21 @@ class BeliefPath:
         ``S`` is (K+1, d, d) (S[0] ignored) or (K, d, d) for steps 1..K.
         Give ``W`` (per step) or ``W_rate`` (per metre) to match ``noise``.
         """
-        x = np.asarray(x, dtype=float)
+        x = _means(x)
         n, d = x.shape
-        S = np.asarray(S, dtype=float)
-        if S.shape[0] == n - 1:
+        S = _float_array(S, "S")
+        if S.shape == (n - 1, d, d):
             S = np.concatenate([np.zeros((1, d, d)), S], axis=0)
+        elif S.shape != (n, d, d):
+            raise ValidationError("S", f"must have shape {(n - 1, d, d)} (steps 1..K) or {(n, d, d)} "
+                                       f"(S[0] ignored) for x of shape {x.shape}, got {S.shape}")
+        P0 = _float_array(P0, "P0")
+        if P0.shape != (d, d):
+            raise ValidationError("P0", f"must have shape {(d, d)}, got {P0.shape}")
         Wk = cls._transition_noise(x, W, W_rate, noise)
         P = np.empty((n, d, d))
         Pp = np.empty((n, d, d))
-        P[0] = Pp[0] = np.asarray(P0, dtype=float)
+        P[0] = Pp[0] = P0
         S = S.copy()
         S[0] = 0.0
         for k in range(1, n):
@@ -94,9 +121,11 @@ class BeliefPath:
         """From means and posterior covariances; priors and the lossless sensing
         S_k = P_k^-1 - P_prior_k^-1 are derived (S_k may come out indefinite
         if the path is not lossless; :func:`~belief_nlp.verify` reports it)."""
-        x = np.asarray(x, dtype=float)
-        P = np.asarray(P, dtype=float)
+        x = _means(x)
+        P = _float_array(P, "P")
         n, d = x.shape
+        if P.shape != (n, d, d):
+            raise ValidationError("P", f"must have shape {(n, d, d)} for x of shape {x.shape}, got {P.shape}")
         Wk = cls._transition_noise(x, W, W_rate, noise)
         Pp = np.empty_like(P)
         Pp[0] = P[0]
@@ -107,16 +136,23 @@ class BeliefPath:
 
     @staticmethod
     def _transition_noise(x: np.ndarray, W, W_rate, noise: str) -> np.ndarray:
+        """Noise added on each transition, (K, d, d)."""
         n, d = x.shape
         if noise == "per_step":
             if W is None:
                 raise ValidationError("W", "per_step noise needs W")
-            return np.broadcast_to(np.asarray(W, dtype=float), (n - 1, d, d)).copy()
+            W = _float_array(W, "W")
+            if W.shape not in ((d, d), (n - 1, d, d)):
+                raise ValidationError("W", f"must have shape {(d, d)} or {(n - 1, d, d)}, got {W.shape}")
+            return np.broadcast_to(W, (n - 1, d, d)).copy()
         if noise == "per_metre":
             if W_rate is None:
                 raise ValidationError("W_rate", "per_metre noise needs W_rate")
+            W_rate = _float_array(W_rate, "W_rate")
+            if W_rate.shape != (d, d):
+                raise ValidationError("W_rate", f"must have shape {(d, d)}, got {W_rate.shape}")
             lengths = np.linalg.norm(np.diff(x, axis=0), axis=1)
-            return lengths[:, None, None] * np.asarray(W_rate, dtype=float)[None]
+            return lengths[:, None, None] * W_rate[None]
         raise ValidationError("noise", f"must be one of {NOISE_MODELS}, got {noise!r}")
 
     # ------------------------------------------------------------ properties
@@ -157,13 +193,38 @@ class BeliefPath:
         """The planner's cost: length + alpha * information (nats)."""
         return self.length + alpha * self.information
 
+    @property
+    def step_information(self) -> np.ndarray:
+        """(K,) information 1/2 (log det P_prior_k - log det P_k) of each step, nats."""
+        return np.asarray(belief.information_cost(self.P_prior[1:], self.P[1:]), dtype=float).reshape(self.K)
+
+    @property
+    def step_control(self) -> np.ndarray:
+        """(K,) control cost ||x_k - x_{k-1}||^2 of each step, m^2."""
+        return np.sum(np.diff(self.x, axis=0) ** 2, axis=1)
+
+    @property
+    def sensing_steps(self) -> np.ndarray:
+        """1-based indices k of the steps with a measurement (S_k != 0)."""
+        return np.nonzero(np.any(self.S[1:] != 0, axis=(1, 2)))[0] + 1
+
     def cost_breakdown(self, alpha: float) -> dict[str, float]:
+        """Costs of the path for information weight ``alpha``.
+
+        ``steering`` = ``control`` + alpha * ``information_nats`` (the
+        smoothing paper's objective); ``planner`` = ``length`` + alpha *
+        ``information_nats`` (the planner's); ``information_bits`` is the
+        same information in bits, as the authors' IG-RRT* reports it.
+        """
+        info = self.information
         return {
-            "steering": self.steering_cost(alpha),
+            "alpha": float(alpha),
+            "steering": self.control_cost + alpha * info,
             "control": self.control_cost,
             "length": self.length,
-            "information_nats": self.information,
-            "planner": self.planner_cost(alpha),
+            "information_nats": info,
+            "information_bits": info / belief.NATS_PER_BIT,
+            "planner": self.length + alpha * info,
         }
 
     # ---------------------------------------------------------------- files
@@ -180,18 +241,24 @@ class BeliefPath:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "BeliefPath":
         if not isinstance(data, dict):
-            raise ValidationError("path", "must be an object")
+            raise ValidationError("path", f"must be an object, got {type(data).__name__}")
         missing = {"x", "P", "P_prior", "S"} - set(data)
         if missing:
             raise ValidationError(f"path.{sorted(missing)[0]}", "missing")
-        return cls(np.array(data["x"], float), np.array(data["P"], float), np.array(data["P_prior"], float),
-                   np.array(data["S"], float), data.get("noise", "per_step"), dict(data.get("meta", {})))
+        unknown = set(data) - {"x", "P", "P_prior", "S", "noise", "meta"}
+        if unknown:
+            raise ValidationError(f"path.{sorted(unknown)[0]}", "unknown key")
+        noise = data.get("noise", "per_step")
+        meta = data.get("meta", {})
+        if not isinstance(meta, dict):
+            raise ValidationError("path.meta", f"must be an object, got {type(meta).__name__}")
+        return cls(data["x"], data["P"], data["P_prior"], data["S"], noise, dict(meta))
 
     def save(self, path: str | Path) -> Path:
         """Write as ``.json`` or ``.npz`` (by suffix); :meth:`load` reads it back equal."""
         path = Path(path)
         if path.suffix == ".json":
-            path.write_text(json.dumps(self.to_dict()))
+            path.write_text(json.dumps(self.to_dict(), allow_nan=False))
         elif path.suffix == ".npz":
             np.savez(path, x=self.x, P=self.P, P_prior=self.P_prior, S=self.S,
                      noise=np.array(self.noise), meta=np.array(json.dumps(self.meta)))
@@ -201,15 +268,24 @@ class BeliefPath:
 
     @classmethod
     def load(cls, path: str | Path) -> "BeliefPath":
+        """Read a path written by :meth:`save` (``.npz``; anything else is read as JSON)."""
         path = Path(path)
-        if not path.exists():
+        if not path.is_file():
             raise ValidationError("path", f"no such file: {path}")
         if path.suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
-                return cls(z["x"], z["P"], z["P_prior"], z["S"], str(z["noise"]), json.loads(str(z["meta"])))
+            try:
+                with np.load(path, allow_pickle=False) as z:
+                    missing = {"x", "P", "P_prior", "S", "noise", "meta"} - set(z.files)
+                    if missing:
+                        raise ValidationError(f"path.{sorted(missing)[0]}", f"missing in {path}")
+                    return cls(z["x"], z["P"], z["P_prior"], z["S"], str(z["noise"]), json.loads(str(z["meta"])))
+            except ValidationError:
+                raise
+            except (OSError, ValueError) as exc:
+                raise ValidationError("path", f"{path}: not a belief-path NPZ file: {exc}") from exc
         try:
             data = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ValidationError("path", f"{path}: malformed JSON: {exc}") from exc
         if isinstance(data, dict) and "path" in data and "x" not in data:
             data = data["path"]  # a result file holding a path

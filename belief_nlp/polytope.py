@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ValidationError
+from .errors import ScenarioFileError, ValidationError
 
 __all__ = ["Polytope"]
 
@@ -25,12 +25,25 @@ _REL_TOL = 1e-9
 
 
 def _as_finite_array(value: Any, field_name: str, ndim: int) -> np.ndarray:
+    """``value`` as a float array of ``ndim`` dimensions with finite entries.
+
+    Booleans, strings, ``None`` and ragged nested lists are rejected with a
+    :class:`ValidationError` naming ``field_name`` (numpy alone would turn
+    ``True`` into 1.0 and fail on the others with an unrelated message).
+    """
+    what = "a number" if ndim == 0 else ("a list of numbers" if ndim == 1 else "a list of lists of numbers")
     try:
-        arr = np.array(value, dtype=float)
+        raw = np.asarray(value)
     except (TypeError, ValueError) as exc:
-        raise ValidationError(field_name, f"must be numeric, got {value!r}") from exc
+        raise ValidationError(field_name, f"must be {what} of equal lengths, got {value!r}") from exc
+    if raw.dtype == object:
+        raise ValidationError(field_name, f"must be {what} (ragged or non-numeric entries), got {value!r}")
+    if raw.dtype.kind not in "iuf":
+        kind = "booleans" if raw.dtype.kind == "b" else type(value).__name__
+        raise ValidationError(field_name, f"must be {what}, got {kind}: {value!r}")
+    arr = raw.astype(float)
     if arr.ndim != ndim:
-        raise ValidationError(field_name, f"must be a {ndim}-D array, got shape {arr.shape}")
+        raise ValidationError(field_name, f"must be {what} ({ndim}-D array), got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValidationError(field_name, "contains NaN or infinite values")
     return arr
@@ -43,8 +56,41 @@ def _normalise_rows(A: np.ndarray, b: np.ndarray, field_name: str) -> tuple[np.n
         raise ValidationError(f"{field_name}.A", f"row {bad} is a zero normal")
     # Rows already of unit length are left bit-for-bit alone so that save/load
     # round-trips exactly.
-    scale = np.where(np.abs(norms - 1.0) <= 4e-16, 1.0, norms)
+    # (A row normalised in floating point has a norm within a few ulps of 1.)
+    scale = np.where(np.abs(norms - 1.0) <= 1e-15, 1.0, norms)
     return A / scale[:, None], b / scale
+
+
+def _repeated_vertex(V: np.ndarray, field_name: str) -> None:
+    """Reject a vertex list in which two vertices (adjacent or not) coincide."""
+    span = float(np.max(np.ptp(V, axis=0)))
+    if span <= 0:
+        raise ValidationError(field_name, "degenerate polytope: all vertices coincide")
+    dist = np.linalg.norm(V[:, None, :] - V[None, :, :], axis=-1)
+    close = np.argwhere(np.triu(dist <= _REL_TOL * span, k=1))
+    if close.size:
+        i, j = (int(v) for v in close[0])
+        raise ValidationError(field_name, f"repeated vertex: vertices {i} and {j} coincide ({V[i].tolist()})")
+
+
+def _crossing_edges(V: np.ndarray) -> tuple[int, int] | None:
+    """First pair of non-adjacent edges (i, i+1), (j, j+1) of a closed polygon that cross."""
+    n = V.shape[0]
+
+    def orient(p, q, r):
+        return (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])
+
+    for i in range(n):
+        p1, p2 = V[i], V[(i + 1) % n]
+        for j in range(i + 2, n):
+            if i == 0 and j == n - 1:
+                continue  # adjacent through vertex 0
+            q1, q2 = V[j], V[(j + 1) % n]
+            d1, d2 = orient(q1, q2, p1), orient(q1, q2, p2)
+            d3, d4 = orient(p1, p2, q1), orient(p1, p2, q2)
+            if d1 * d2 <= 0 and d3 * d4 <= 0 and (d1, d2, d3, d4) != (0, 0, 0, 0):
+                return i, j
+    return None
 
 
 def _polygon_from_vertices(V: np.ndarray, field_name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -52,14 +98,15 @@ def _polygon_from_vertices(V: np.ndarray, field_name: str) -> tuple[np.ndarray, 
     n = V.shape[0]
     if n < 3:
         raise ValidationError(field_name, f"a polygon needs at least 3 vertices, got {n}")
+    _repeated_vertex(V, field_name)
     span = float(np.max(np.ptp(V, axis=0)))
-    if span <= 0:
-        raise ValidationError(field_name, "degenerate polygon: all vertices coincide")
     edges = np.roll(V, -1, axis=0) - V
     lengths = np.linalg.norm(edges, axis=1)
-    if np.any(lengths <= _REL_TOL * span):
-        i = int(np.argmin(lengths))
-        raise ValidationError(field_name, f"degenerate polygon: vertices {i} and {(i + 1) % n} coincide")
+    crossing = _crossing_edges(V)
+    if crossing is not None:
+        i, j = crossing
+        raise ValidationError(field_name, f"polygon is self-intersecting: edge {i}-{(i + 1) % n} meets "
+                                          f"edge {j}-{(j + 1) % n} (list the vertices in boundary order)")
     area2 = float(np.sum(V[:, 0] * np.roll(V[:, 1], -1) - np.roll(V[:, 0], -1) * V[:, 1]))
     if abs(area2) <= _REL_TOL * span * span:
         raise ValidationError(field_name, "degenerate polygon: zero area (collinear vertices)")
@@ -166,6 +213,7 @@ class Polytope:
         d = V.shape[1]
         if V.shape[0] < d + 1:
             raise ValidationError(field_name, f"a {d}-D polytope needs at least {d + 1} vertices, got {V.shape[0]}")
+        _repeated_vertex(V, field_name)
         try:
             hull = ConvexHull(V)
         except QhullError as exc:
@@ -210,7 +258,7 @@ class Polytope:
         A_arr = _as_finite_array(A, f"{field_name}.A", 2)
         b_arr = _as_finite_array(b, f"{field_name}.b", 1)
         if A_arr.shape[0] != b_arr.shape[0]:
-            raise ValidationError(field_name, f"A has {A_arr.shape[0]} rows but b has {b_arr.shape[0]} entries")
+            raise ValidationError(f"{field_name}.b", f"A has {A_arr.shape[0]} rows but b has {b_arr.shape[0]} entries")
         d = A_arr.shape[1]
         if d < 2:
             raise ValidationError(f"{field_name}.A", f"dimension must be >= 2, got {d}")
@@ -220,24 +268,28 @@ class Polytope:
             return cls(A_arr, b_arr, None, name, spec)
         if A_arr.shape[0] < d + 1:
             raise ValidationError(field_name, f"a bounded {d}-D polytope needs at least {d + 1} half-spaces, got {A_arr.shape[0]}")
-        V = _vertex_enumeration(A_arr, b_arr)
-        if V.shape[0] < d + 1:
-            raise ValidationError(field_name, "empty, degenerate or unbounded polytope")
-        # bounded iff no direction y with A y <= 0 other than 0: check via
-        # the vertex hull -- every face must touch at least d vertices and the
-        # hull must have interior.
         from scipy.optimize import linprog
 
+        # Chebyshev centre: the largest ball inside (rows are unit), radius capped.
+        scale = 1.0 + float(np.max(np.abs(b_arr)))
+        res = linprog(np.r_[np.zeros(d), -1.0], A_ub=np.column_stack([A_arr, np.ones(len(b_arr))]), b_ub=b_arr,
+                      bounds=[(None, None)] * d + [(None, 1e6 * scale)], method="highs")
+        if res.status == 2 or (res.status == 0 and res.x[-1] < 0):
+            raise ValidationError(field_name, "empty polytope: the half-spaces have no common point")
+        if res.status == 0 and res.x[-1] <= _REL_TOL * scale:
+            raise ValidationError(field_name, "degenerate polytope: it has no interior (flat)")
+        # bounded iff no coordinate can grow without limit
         for i in range(d):
             for sgn in (1.0, -1.0):
                 c = np.zeros(d)
                 c[i] = -sgn
                 res = linprog(c, A_ub=A_arr, b_ub=b_arr, bounds=[(None, None)] * d, method="highs")
                 if res.status == 3:
-                    raise ValidationError(field_name, "unbounded polytope")
-        centre = V.mean(axis=0)
-        if np.max(A_arr @ centre - b_arr) >= -_REL_TOL * (1 + np.max(np.abs(b_arr))):
-            raise ValidationError(field_name, "degenerate polytope (no interior)")
+                    direction = ("+" if sgn > 0 else "-") + "xyz"[i] if d <= 3 else f"axis {i}"
+                    raise ValidationError(field_name, f"unbounded polytope: it extends to infinity along {direction}")
+        V = _vertex_enumeration(A_arr, b_arr)
+        if V.shape[0] < d + 1:  # pragma: no cover - excluded by the checks above
+            raise ValidationError(field_name, "degenerate polytope (too few vertices)")
         if d == 2:
             V = _order_ccw(V)
         return cls(A_arr, b_arr, V, name, spec)
@@ -291,27 +343,44 @@ class Polytope:
 
     @classmethod
     def from_dict(cls, data: Any, field_name: str = "polytope", require_bounded: bool = True) -> "Polytope":
-        """Build from ``{"vertices": ...}``, ``{"box": {"lower", "upper"}}`` or ``{"A", "b"}``."""
+        """Build from ``{"vertices": ...}``, ``{"box": {"lower", "upper"}}`` or ``{"A", "b"}``.
+
+        Faults of structure (not a table, unknown or missing keys) raise
+        :class:`~belief_nlp.errors.ScenarioFileError`, bad values
+        :class:`~belief_nlp.errors.ValidationError`; both name the field.
+        """
         if not isinstance(data, dict):
-            raise ValidationError(field_name, f"must be a table/object, got {type(data).__name__}")
-        name = data.get("name", "")
-        if not isinstance(name, str):
-            raise ValidationError(f"{field_name}.name", "must be a string")
-        keys = {k for k in ("vertices", "box", "A") if k in data}
-        if len(keys) != 1:
-            raise ValidationError(field_name, "give exactly one of 'vertices', 'box' or 'A'/'b'")
+            raise ScenarioFileError(field_name, f"must be a table/object with one of the keys 'vertices', 'box' "
+                                              f"or 'A'/'b', got {type(data).__name__}: {data!r}")
         unknown = set(data) - {"name", "vertices", "box", "A", "b"}
         if unknown:
-            raise ValidationError(field_name, f"unknown keys {sorted(unknown)}")
+            raise ScenarioFileError(f"{field_name}.{sorted(unknown)[0]}",
+                                  f"unknown key (a polytope takes 'name' and one of 'vertices', 'box' or 'A'/'b')")
+        name = data.get("name", "")
+        if not isinstance(name, str):
+            raise ScenarioFileError(f"{field_name}.name", f"must be a string, got {type(name).__name__}")
+        keys = [k for k in ("vertices", "box", "A") if k in data]
+        if len(keys) != 1:
+            given = ", ".join(repr(k) for k in keys) if keys else "none"
+            raise ScenarioFileError(field_name, f"give exactly one of 'vertices', 'box' or 'A'/'b' (given: {given})")
+        if "b" in data and "A" not in data:
+            raise ScenarioFileError(f"{field_name}.b", "'b' is only allowed together with 'A'")
         if "vertices" in data:
             return cls.from_vertices(data["vertices"], name, f"{field_name}.vertices")
         if "box" in data:
             box = data["box"]
-            if not isinstance(box, dict) or set(box) != {"lower", "upper"}:
-                raise ValidationError(f"{field_name}.box", "must have exactly the keys 'lower' and 'upper'")
+            if not isinstance(box, dict):
+                raise ScenarioFileError(f"{field_name}.box", f"must be a table {{lower = [...], upper = [...]}}, "
+                                                           f"got {type(box).__name__}")
+            extra = set(box) - {"lower", "upper"}
+            if extra:
+                raise ScenarioFileError(f"{field_name}.box.{sorted(extra)[0]}", "unknown key (a box has 'lower' and 'upper')")
+            for key in ("lower", "upper"):
+                if key not in box:
+                    raise ScenarioFileError(f"{field_name}.box.{key}", "missing")
             return cls.box(box["lower"], box["upper"], name, f"{field_name}.box")
         if "b" not in data:
-            raise ValidationError(field_name, "'A' given without 'b'")
+            raise ScenarioFileError(f"{field_name}.b", "missing ('A' needs 'b')")
         return cls.from_halfspaces(data["A"], data["b"], name, field_name, require_bounded)
 
     def __eq__(self, other: object) -> bool:

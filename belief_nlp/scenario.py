@@ -34,13 +34,15 @@ File schema (TOML or JSON, the same tree in both)::
     max_radius = 0.3
 
 All lengths in metres. ``chi2`` is the ``confidence`` quantile of the chi-square
-law with ``d`` degrees of freedom unless given directly.
+law with ``d`` degrees of freedom unless given directly. The full schema, units
+and validation rules are in ``docs/scenario_schema.md``.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import numbers
 import tomllib
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -58,17 +60,35 @@ __all__ = ["Scenario", "load_scenario", "save_scenario", "list_scenarios", "scen
 _BUILTIN_PACKAGE = "belief_nlp.scenarios"
 
 
+def _is_real(value: Any) -> bool:
+    """A real number that is not a bool (TOML ``true`` must not pass as 1)."""
+    return isinstance(value, (numbers.Real, np.floating, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
 def _covariance(value: Any, d: int, field_name: str, allow_singular: bool) -> np.ndarray:
-    """Parse a scalar / diagonal / full matrix and check symmetry and definiteness."""
-    arr = np.array(value, dtype=float) if not isinstance(value, np.ndarray) else value.astype(float)
-    if arr.ndim == 0:
-        arr = float(arr) * np.eye(d)
-    elif arr.ndim == 1:
-        if arr.size != d:
-            raise ValidationError(field_name, f"diagonal must have {d} entries, got {arr.size}")
-        arr = np.diag(arr)
+    """Parse a scalar / diagonal / full matrix and check symmetry and definiteness.
+
+    A scalar ``s`` means ``s I``; a list of ``d`` numbers is the diagonal.
+    """
+    if _is_real(value):
+        arr = float(value) * np.eye(d)
+    else:
+        try:
+            raw = np.asarray(value)
+        except (TypeError, ValueError):
+            raw = np.empty(0, dtype=object)
+        if raw.dtype.kind not in "iuf" or raw.ndim > 2:
+            raise ValidationError(field_name, f"must be a number (s * I), a list of {d} numbers (the diagonal) "
+                                              f"or a {d}x{d} matrix, got {value!r}")
+        arr = raw.astype(float)
+        if arr.ndim == 0:
+            arr = float(arr) * np.eye(d)
+        elif arr.ndim == 1:
+            if arr.size != d:
+                raise ValidationError(field_name, f"diagonal must have {d} entries for a {d}-D scenario, got {arr.size}")
+            arr = np.diag(arr)
     if arr.shape != (d, d):
-        raise ValidationError(field_name, f"must be a {d}x{d} matrix, got shape {arr.shape}")
+        raise ValidationError(field_name, f"must be a {d}x{d} matrix for a {d}-D scenario, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValidationError(field_name, "contains NaN or infinite values")
     scale = max(float(np.max(np.abs(arr))), 1e-300)
@@ -78,7 +98,7 @@ def _covariance(value: Any, d: int, field_name: str, allow_singular: bool) -> np
     if allow_singular:
         if eig[0] < -1e-12 * scale:
             raise ValidationError(field_name, f"covariance is not positive semidefinite (eigenvalue {eig[0]:.3g})")
-    elif eig[0] <= 0:
+    elif eig[0] <= 1e-12 * scale:
         raise ValidationError(field_name, f"covariance is not positive definite (smallest eigenvalue {eig[0]:.3g})")
     return arr
 
@@ -95,8 +115,12 @@ class Scenario:
     x0 : (d,) start mean; P0 : (d, d) start covariance (positive semidefinite)
     W : (d, d) process noise per time step (smoother's model, paper eq. 2)
     W_rate : (d, d) process noise per metre travelled (the authors' planner)
-    alpha : information weight
-    confidence : confidence level of the ellipses; ``chi2`` the matching quantile
+    alpha : information weight (>= 0)
+    confidence : confidence level of the ellipses, in (0, 1); 0.9 when neither
+        it nor ``chi2_value`` is given. ``chi2`` is the matching chi-square
+        quantile for ``dim`` degrees of freedom.
+    chi2_value : give the squared radius directly instead of ``confidence``
+        (not both); ``confidence`` is then None
     K : default horizon of the smoother, or None
     planner : default keyword options for the planner
     """
@@ -109,7 +133,7 @@ class Scenario:
     W: np.ndarray
     W_rate: np.ndarray
     alpha: float = 0.1
-    confidence: float | None = 0.9
+    confidence: float | None = None
     chi2_value: float | None = None
     K: int | None = None
     planner: dict = field(default_factory=dict)
@@ -146,6 +170,11 @@ class Scenario:
     def with_options(self, **changes: Any) -> "Scenario":
         """A copy with some fields replaced (validated again)."""
         data = {f: getattr(self, f) for f in self.__dataclass_fields__}
+        # Choosing one of confidence / chi2_value drops the other.
+        if "chi2_value" in changes and "confidence" not in changes:
+            data["confidence"] = None
+        if "confidence" in changes and "chi2_value" not in changes:
+            data["chi2_value"] = None
         data.update(changes)
         return Scenario(**data)
 
@@ -187,6 +216,9 @@ class Scenario:
 # ---------------------------------------------------------------- validation
 def _validate(sc: Scenario) -> None:
     """All checks in one place; raises ValidationError naming the field."""
+    for fname in ("name", "description"):
+        if not isinstance(getattr(sc, fname), str):
+            raise ValidationError(fname, f"must be a string, got {type(getattr(sc, fname)).__name__}")
     if not isinstance(sc.domain, Polytope) or not sc.domain.bounded:
         raise ValidationError("domain", "must be a bounded convex polytope")
     d = sc.domain.dim
@@ -195,132 +227,147 @@ def _validate(sc: Scenario) -> None:
     if not isinstance(sc.target, Polytope) or not sc.target.bounded:
         raise ValidationError("target", "must be a bounded convex polytope")
     if sc.target.dim != d:
-        raise ValidationError("target", f"dimension {sc.target.dim} does not match the domain's {d}")
-    for i, ob in enumerate(sc.obstacles):
+        raise ValidationError("target", f"is {sc.target.dim}-D but the domain is {d}-D")
+    if isinstance(sc.obstacles, (str, bytes, dict, Polytope)) or not hasattr(sc.obstacles, "__iter__"):
+        raise ValidationError("obstacles", f"must be a sequence of Polytope, got {type(sc.obstacles).__name__}")
+    obstacles = tuple(sc.obstacles)
+    for i, ob in enumerate(obstacles):
         if not isinstance(ob, Polytope):
-            raise ValidationError(f"obstacles[{i}]", "must be a Polytope")
+            raise ValidationError(f"obstacles[{i}]", f"must be a Polytope, got {type(ob).__name__}")
         if ob.dim != d:
-            raise ValidationError(f"obstacles[{i}]", f"dimension {ob.dim} does not match the domain's {d}")
+            raise ValidationError(f"obstacles[{i}]", f"is {ob.dim}-D but the domain is {d}-D")
         if not ob.bounded:
             raise ValidationError(f"obstacles[{i}]", "must be bounded")
     object.__setattr__(sc, "obstacles", tuple(
         ob if ob.name else Polytope(ob.A, ob.b, ob.vertices, f"obstacle {i + 1}", ob.spec)
-        for i, ob in enumerate(sc.obstacles)))
+        for i, ob in enumerate(obstacles)))
 
     x0 = _as_finite_array(sc.x0, "start.x", 1)
     if x0.size != d:
-        raise ValidationError("start.x", f"must have {d} entries, got {x0.size}")
+        raise ValidationError("start.x", f"must have {d} entries for a {d}-D scenario, got {x0.size}")
     object.__setattr__(sc, "x0", x0)
     object.__setattr__(sc, "P0", _covariance(sc.P0, d, "start.P", allow_singular=True))
     object.__setattr__(sc, "W", _covariance(sc.W, d, "noise.W", allow_singular=False))
     object.__setattr__(sc, "W_rate", _covariance(sc.W_rate, d, "noise.W_rate", allow_singular=False))
 
-    if not isinstance(sc.alpha, (int, float)) or not math.isfinite(sc.alpha) or sc.alpha < 0:
+    if not _is_real(sc.alpha) or not math.isfinite(sc.alpha) or sc.alpha < 0:
         raise ValidationError("alpha", f"must be a finite number >= 0, got {sc.alpha!r}")
     object.__setattr__(sc, "alpha", float(sc.alpha))
+    if sc.chi2_value is not None and sc.confidence is not None:
+        raise ValidationError("chi2", "give either 'confidence' or 'chi2', not both")
     if sc.chi2_value is not None:
-        if not isinstance(sc.chi2_value, (int, float)) or not math.isfinite(sc.chi2_value) or sc.chi2_value <= 0:
+        if not _is_real(sc.chi2_value) or not math.isfinite(sc.chi2_value) or sc.chi2_value <= 0:
             raise ValidationError("chi2", f"must be a finite number > 0, got {sc.chi2_value!r}")
-        object.__setattr__(sc, "confidence", None)
+        object.__setattr__(sc, "chi2_value", float(sc.chi2_value))
     else:
-        c = sc.confidence
-        if not isinstance(c, (int, float)) or not math.isfinite(c) or not 0 < c < 1:
+        c = 0.9 if sc.confidence is None else sc.confidence
+        if not _is_real(c) or not math.isfinite(c) or not 0 < c < 1:
             raise ValidationError("confidence", f"must lie strictly between 0 and 1, got {c!r}")
-    if sc.K is not None and (not isinstance(sc.K, (int, np.integer)) or isinstance(sc.K, bool) or sc.K < 1):
-        raise ValidationError("horizon.K", f"must be a positive integer, got {sc.K!r}")
+        object.__setattr__(sc, "confidence", float(c))
+    if sc.K is not None:
+        if not isinstance(sc.K, (int, np.integer)) or isinstance(sc.K, (bool, np.bool_)) or sc.K < 1:
+            raise ValidationError("horizon.K", f"must be a positive integer, got {sc.K!r}")
+        object.__setattr__(sc, "K", int(sc.K))
     if not isinstance(sc.planner, dict):
-        raise ValidationError("planner", "must be a table of planner options")
+        raise ValidationError("planner", f"must be a table of planner options, got {type(sc.planner).__name__}")
 
     # target inside the domain
     slack = sc.domain.b[None, :] - sc.target.vertices @ sc.domain.A.T
     if np.min(slack) < -1e-12:
-        raise ValidationError("target", "target is not inside the domain")
+        i, face = np.unravel_index(np.argmin(slack), slack.shape)
+        raise ValidationError("target", f"target is not inside the domain (vertex {sc.target.vertices[i].tolist()} "
+                                        f"is {-slack[i, face]:.3g} m outside domain face {face})")
     # start ellipse inside the domain and clear of every obstacle
     from .geometry import containment_margin, ellipse_clearance
 
-    if containment_margin(x0, sc.P0, sc.domain.A, sc.domain.b, sc.chi2) < 0:
-        raise ValidationError("start", "start confidence ellipse is not inside the domain")
+    m = containment_margin(x0, sc.P0, sc.domain.A, sc.domain.b, sc.chi2)
+    if m < 0:
+        raise ValidationError("start", f"start confidence ellipse is not inside the domain (sticks out by {-m:.3g} m)")
     for ob in sc.obstacles:
         if ellipse_clearance(x0, sc.P0, ob.A, ob.b, sc.chi2) < 0:
             raise ValidationError("start", f"start confidence ellipse is not clear of {ob.name}")
 
 
 # -------------------------------------------------------------------- files
+_TOP_KEYS = ("name", "description", "confidence", "chi2", "alpha", "start", "noise", "domain", "target",
+             "obstacles", "horizon", "planner")
+_TABLE_KEYS = {"start": (("x", "P"), ()), "noise": (("W",), ("W_rate",)), "horizon": ((), ("K",))}
+
+
 def scenario_from_dict(data: Any, source: str = "scenario") -> Scenario:
-    """Build a :class:`Scenario` from the schema in this module's docstring."""
+    """Build a :class:`Scenario` from the file schema (docs/scenario_schema.md).
+
+    Structural faults (not a table, missing or unknown keys, wrong types) raise
+    :class:`~belief_nlp.errors.ScenarioFileError`; bad values raise
+    :class:`~belief_nlp.errors.ValidationError`. Both name the field.
+    """
     if not isinstance(data, dict):
-        raise ScenarioFileError("", f"{source}: top level must be a table/object")
-    known = {"name", "description", "confidence", "chi2", "alpha", "start", "noise", "domain",
-             "target", "obstacles", "horizon", "planner"}
-    unknown = set(data) - known
+        raise ScenarioFileError("file", f"{source}: the top level must be a table/object, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(_TOP_KEYS))
     if unknown:
-        raise ScenarioFileError(sorted(unknown)[0], f"unknown key in {source}")
+        raise ScenarioFileError(unknown[0], f"unknown key in {source} (known keys: {', '.join(_TOP_KEYS)})")
     for key in ("start", "noise", "domain", "target"):
         if key not in data:
-            raise ScenarioFileError(key, f"missing in {source}")
+            raise ScenarioFileError(key, f"required key is missing in {source}")
     if "confidence" in data and "chi2" in data:
         raise ScenarioFileError("chi2", "give either 'confidence' or 'chi2', not both")
+    for key in ("name", "description"):
+        if key in data and not isinstance(data[key], str):
+            raise ScenarioFileError(key, f"must be a string, got {type(data[key]).__name__}")
+    for key in ("alpha", "confidence", "chi2"):
+        if key in data and not _is_real(data[key]):
+            raise ScenarioFileError(key, f"must be a number, got {type(data[key]).__name__}: {data[key]!r}")
 
-    def table(key: str, required: tuple[str, ...]) -> dict:
-        t = data[key]
+    tables: dict[str, dict] = {}
+    for key, (required, optional) in _TABLE_KEYS.items():
+        t = data.get(key, {})
         if not isinstance(t, dict):
-            raise ScenarioFileError(key, "must be a table/object")
+            raise ScenarioFileError(key, f"must be a table/object, got {type(t).__name__}")
+        extra = sorted(set(t) - set(required) - set(optional))
+        if extra:
+            raise ScenarioFileError(f"{key}.{extra[0]}", f"unknown key (allowed: {', '.join(required + optional)})")
         for r in required:
             if r not in t:
-                raise ScenarioFileError(f"{key}.{r}", "missing")
-        return t
-
-    start = table("start", ("x", "P"))
-    noise = table("noise", ("W",))
+                raise ScenarioFileError(f"{key}.{r}", "required key is missing")
+        tables[key] = t
     obstacles = data.get("obstacles", [])
     if not isinstance(obstacles, list):
-        raise ScenarioFileError("obstacles", "must be an array of tables")
-    horizon = data.get("horizon", {})
-    if not isinstance(horizon, dict):
-        raise ScenarioFileError("horizon", "must be a table")
+        raise ScenarioFileError("obstacles", f"must be an array of tables, got {type(obstacles).__name__}")
+    planner = data.get("planner", {})
+    if not isinstance(planner, dict):
+        raise ScenarioFileError("planner", f"must be a table of planner options, got {type(planner).__name__}")
+    K = tables["horizon"].get("K")
+    if K is not None and (not isinstance(K, int) or isinstance(K, bool)):
+        raise ScenarioFileError("horizon.K", f"must be an integer, got {type(K).__name__}: {K!r}")
+
+    # Geometry first, so that a dimension mismatch is reported as such and not
+    # as a wrongly sized covariance.
     domain = Polytope.from_dict(data["domain"], "domain")
+    target = Polytope.from_dict(data["target"], "target")
+    obs = tuple(Polytope.from_dict(o, f"obstacles[{i}]") for i, o in enumerate(obstacles))
     d = domain.dim
-    try:
-        W = noise["W"]
-        return Scenario(
-            domain=domain,
-            target=Polytope.from_dict(data["target"], "target"),
-            obstacles=tuple(Polytope.from_dict(o, f"obstacles[{i}]") for i, o in enumerate(obstacles)),
-            x0=np.array(start["x"], dtype=float) if _is_numeric(start["x"]) else _bad("start.x", start["x"]),
-            P0=_matrix_field(start["P"], d, "start.P"),
-            W=_matrix_field(W, d, "noise.W"),
-            W_rate=_matrix_field(noise.get("W_rate", W), d, "noise.W_rate"),
-            alpha=data.get("alpha", 0.1),
-            confidence=data.get("confidence", 0.9),
-            chi2_value=data.get("chi2"),
-            K=horizon.get("K"),
-            planner=dict(data.get("planner", {})) if isinstance(data.get("planner", {}), dict)
-            else _bad("planner", data.get("planner")),
-            name=str(data.get("name", "")),
-            description=str(data.get("description", "")),
-        )
-    except ValidationError:
-        raise
-    except (TypeError, ValueError) as exc:  # pragma: no cover - defensive
-        raise ScenarioFileError("", f"{source}: {exc}") from exc
-
-
-def _is_numeric(v: Any) -> bool:
-    try:
-        np.array(v, dtype=float)
-        return True
-    except (TypeError, ValueError):
-        return False
-
-
-def _bad(field_name: str, value: Any) -> Any:
-    raise ScenarioFileError(field_name, f"invalid value {value!r}")
-
-
-def _matrix_field(v: Any, d: int, field_name: str) -> np.ndarray:
-    if not _is_numeric(v):
-        _bad(field_name, v)
-    return _covariance(v, d, field_name, allow_singular=field_name == "start.P")
+    if target.dim != d:
+        raise ValidationError("target", f"is {target.dim}-D but the domain is {d}-D")
+    for i, o in enumerate(obs):
+        if o.dim != d:
+            raise ValidationError(f"obstacles[{i}]", f"is {o.dim}-D but the domain is {d}-D")
+    start, noise = tables["start"], tables["noise"]
+    return Scenario(
+        domain=domain,
+        target=target,
+        obstacles=obs,
+        x0=_as_finite_array(start["x"], "start.x", 1),
+        P0=_covariance(start["P"], d, "start.P", allow_singular=True),
+        W=_covariance(noise["W"], d, "noise.W", allow_singular=False),
+        W_rate=_covariance(noise.get("W_rate", noise["W"]), d, "noise.W_rate", allow_singular=False),
+        alpha=data.get("alpha", 0.1),
+        confidence=data.get("confidence"),
+        chi2_value=data.get("chi2"),
+        K=K,
+        planner=dict(planner),
+        name=data.get("name", ""),
+        description=data.get("description", ""),
+    )
 
 
 def list_scenarios() -> list[str]:
@@ -330,14 +377,21 @@ def list_scenarios() -> list[str]:
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
-    """Load a built-in scenario by name, or a ``.toml`` / ``.json`` file."""
+    """Load a built-in scenario by name, or a ``.toml`` / ``.json`` file.
+
+    Files whose suffix is neither are read as TOML. Faults raise
+    :class:`~belief_nlp.errors.ScenarioFileError` (field ``"file"`` for an
+    unreadable or malformed file, ``"name"`` for an unknown built-in).
+    """
     if isinstance(name_or_path, Scenario):
         return name_or_path
     text_name = str(name_or_path)
     path = Path(text_name)
     if path.suffix.lower() in (".toml", ".json") or path.exists():
         if not path.exists():
-            raise ScenarioFileError("path", f"no such scenario file: {text_name}")
+            raise ScenarioFileError("file", f"no such scenario file: {text_name}")
+        if not path.is_file():
+            raise ScenarioFileError("file", f"not a file: {text_name}")
         raw = path.read_bytes()
         fmt = "json" if path.suffix.lower() == ".json" else "toml"
         return _parse(raw, fmt, text_name)
@@ -349,9 +403,10 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
 
 def _parse(raw: bytes, fmt: str, source: str) -> Scenario:
     try:
-        data = json.loads(raw) if fmt == "json" else tomllib.loads(raw.decode("utf-8"))
+        text = raw.decode("utf-8")
+        data = json.loads(text) if fmt == "json" else tomllib.loads(text)
     except (json.JSONDecodeError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ScenarioFileError("", f"{source}: malformed {fmt.upper()}: {exc}") from exc
+        raise ScenarioFileError("file", f"{source}: malformed {fmt.upper()}: {exc}") from exc
     return scenario_from_dict(data, source)
 
 
@@ -359,12 +414,18 @@ def save_scenario(scenario: Scenario, path: str | Path) -> Path:
     """Write ``scenario`` as TOML or JSON (by suffix); :func:`load_scenario` reads it back equal."""
     path = Path(path)
     data = scenario.to_dict()
-    if path.suffix.lower() == ".json":
-        path.write_text(json.dumps(data, indent=2))
-    elif path.suffix.lower() == ".toml":
-        import tomli_w
+    try:
+        if path.suffix.lower() == ".json":
+            text = json.dumps(data, indent=2, allow_nan=False)
+        elif path.suffix.lower() == ".toml":
+            import tomli_w
 
-        path.write_text(tomli_w.dumps(data))
-    else:
-        raise ValidationError("path", f"scenario files end in .toml or .json, got {path.suffix!r}")
+            text = tomli_w.dumps(data)
+        else:
+            raise ValidationError("path", f"scenario files end in .toml or .json, got {path.suffix!r}")
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, ValidationError):
+            raise
+        raise ValidationError("planner", f"cannot be written to {path.suffix}: {exc}") from exc
+    path.write_text(text)
     return path

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.optimize import nnls
 
 from . import belief
+from .errors import ValidationError
 from .path import BeliefPath
 from .polytope import Polytope
 from .scenario import Scenario
@@ -91,7 +92,14 @@ class VerificationReport:
 def _chol(P: np.ndarray) -> np.ndarray:
     d = P.shape[-1]
     jitter = 1e-30 * np.eye(d)
-    return np.linalg.cholesky(0.5 * (P + np.swapaxes(P, -1, -2)) + jitter)
+    sym = 0.5 * (P + np.swapaxes(P, -1, -2))
+    try:
+        return np.linalg.cholesky(sym + jitter)
+    except np.linalg.LinAlgError:
+        # Indefinite P(s) (only for paths already reported as inconsistent):
+        # measure with the PSD part so that the report can still be built.
+        w, V = np.linalg.eigh(sym)
+        return np.linalg.cholesky((V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2) + jitter)
 
 
 def _sqdist_halfspace(x: np.ndarray, P: np.ndarray, a: np.ndarray, beta: float) -> np.ndarray:
@@ -165,6 +173,18 @@ def _support(P: np.ndarray, A: np.ndarray) -> np.ndarray:
     return np.linalg.norm(A @ R, axis=1)
 
 
+def _psd_part(P: np.ndarray, rtol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest symmetric PSD matrices of a stack, and which ones were not PSD
+    (asymmetric or with an eigenvalue below -rtol * norm)."""
+    sym = 0.5 * (P + np.swapaxes(P, -1, -2))
+    norm = np.maximum(np.linalg.norm(P, axis=(-2, -1)), 1e-300)
+    asym = np.linalg.norm(P - sym, axis=(-2, -1)) > rtol * norm
+    w, V = np.linalg.eigh(sym)
+    neg = w[..., 0] < -rtol * norm
+    fixed = np.where(neg[:, None, None], (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2), sym)
+    return fixed, asym | neg
+
+
 # ------------------------------------------------------------------ verify
 def verify(scenario: Scenario, path: BeliefPath, n_samples: int = 101, n_refine: int = 41,
            tol: float = 1e-6) -> VerificationReport:
@@ -177,8 +197,24 @@ def verify(scenario: Scenario, path: BeliefPath, n_samples: int = 101, n_refine:
     tol : margins >= -tol * chi2 count as clear. Relative residuals of the
         Kalman recursion and of the noise model must be <= 1e-6.
     """
+    if not isinstance(scenario, Scenario):
+        raise ValidationError("scenario", f"must be a Scenario, got {type(scenario).__name__}")
+    if not isinstance(path, BeliefPath):
+        raise ValidationError("path", f"must be a BeliefPath, got {type(path).__name__}")
     if path.dim != scenario.dim:
-        raise ValueError(f"path dimension {path.dim} does not match scenario dimension {scenario.dim}")
+        raise ValidationError("path.x", f"path is {path.dim}-D but the scenario is {scenario.dim}-D")
+    if int(n_samples) < 2 or int(n_refine) < 2:
+        raise ValidationError("n_samples", f"n_samples and n_refine must be >= 2, got {n_samples}, {n_refine}")
+    problems: list[str] = []
+    # Covariances must be symmetric PSD for the ellipses to mean anything;
+    # report it, and sample with the nearest PSD matrices so the rest of the
+    # report is still computed.
+    P_post, P_bad = _psd_part(path.P)
+    _, Pp_bad = _psd_part(path.P_prior)
+    for k in np.nonzero(P_bad)[0]:
+        problems.append(f"P_{k} is not a covariance (not symmetric positive semidefinite)")
+    for k in np.nonzero(Pp_bad)[0]:
+        problems.append(f"P_prior_{k} is not a covariance (not symmetric positive semidefinite)")
     chi2 = scenario.chi2
     hazards = list(scenario.hazards)
     names = [h.name for h in hazards]
@@ -188,7 +224,7 @@ def verify(scenario: Scenario, path: BeliefPath, n_samples: int = 101, n_refine:
     margins = np.empty((K, len(hazards)))
     for j, h in enumerate(hazards):
         xs = path.x[:-1, None, :] + s[None, :, None] * np.diff(path.x, axis=0)[:, None, :]
-        Ps = path.P[:-1, None] + s[None, :, None, None] * Wk[:, None]
+        Ps = P_post[:-1, None] + s[None, :, None, None] * Wk[:, None]
         vals = _sqdist(xs.reshape(-1, scenario.dim), Ps.reshape(-1, scenario.dim, scenario.dim), h)
         vals = vals.reshape(K, n_samples)
         # refine around the worst sample of each transition
@@ -197,15 +233,14 @@ def verify(scenario: Scenario, path: BeliefPath, n_samples: int = 101, n_refine:
         hi = s[np.minimum(i + 1, n_samples - 1)]
         r = lo[:, None] + np.linspace(0, 1, n_refine)[None, :] * (hi - lo)[:, None]
         xr = path.x[:-1, None, :] + r[..., None] * np.diff(path.x, axis=0)[:, None, :]
-        Pr = path.P[:-1, None] + r[..., None, None] * Wk[:, None]
+        Pr = P_post[:-1, None] + r[..., None, None] * Wk[:, None]
         vr = _sqdist(xr.reshape(-1, scenario.dim), Pr.reshape(-1, scenario.dim, scenario.dim), h)
         margins[:, j] = np.minimum(vals.min(axis=1), vr.reshape(K, n_refine).min(axis=1)) - chi2
 
-    problems: list[str] = []
     atol = tol * chi2
     # target containment of the final posterior
     T = scenario.target
-    xK, PK = path.x[-1], path.P[-1]
+    xK, PK = path.x[-1], P_post[-1]
     t_m = T.b - T.A @ xK - np.sqrt(chi2) * _support(PK, T.A)
     aPa = np.einsum("fi,ij,fj->f", T.A, PK, T.A) + 1e-30
     slack = T.b - T.A @ xK
@@ -214,8 +249,11 @@ def verify(scenario: Scenario, path: BeliefPath, n_samples: int = 101, n_refine:
     kal = np.zeros(K)
     smin = np.zeros(K)
     for k in range(1, K + 1):
-        Pk = belief.update(path.P_prior[k], path.S[k])
-        kal[k - 1] = np.linalg.norm(Pk - path.P[k]) / max(np.linalg.norm(path.P[k]), 1e-300)
+        try:
+            Pk = belief.update(path.P_prior[k], path.S[k])
+            kal[k - 1] = np.linalg.norm(Pk - path.P[k]) / max(np.linalg.norm(path.P[k]), 1e-300)
+        except np.linalg.LinAlgError:  # prior not PSD, or P_prior^-1 + S singular
+            kal[k - 1] = np.inf
         Sn = np.linalg.norm(path.S[k])
         smin[k - 1] = np.linalg.eigvalsh(path.S[k])[0] / Sn if Sn > 0 else 0.0
     # noise model

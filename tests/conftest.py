@@ -1,0 +1,36 @@
+"""Shared test fixtures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import belief_nlp as bn
+
+# A feasible hand-made route through paper-multi: up past obstacle 2's left,
+# along the top, down the right side (east of obstacle 5) into the target box.
+PAPER_MULTI_WAYPOINTS = np.array([(0.15, 0.50), (0.15, 0.80), (0.45, 0.80), (0.75, 0.70), (0.82, 0.33),
+                                  (0.65, 0.05)])
+
+
+def densify(waypoints, steps_per_segment: int) -> np.ndarray:
+    """Means along a polyline, ``steps_per_segment`` equal steps per segment."""
+    wp = np.asarray(waypoints, dtype=float)
+    t = np.arange(1, steps_per_segment + 1)[:, None] / steps_per_segment
+    pts = [wp[:1]] + [wp[i] + t * (wp[i + 1] - wp[i]) for i in range(len(wp) - 1)]
+    return np.vstack(pts)
+
+
+def paper_multi_path_pair(steps_per_segment: int = 4, sensing: float = 1e4):
+    """(scenario, path): K = 5 * steps_per_segment, S_k = sensing * I at every step."""
+    sc = bn.load_scenario("paper-multi")
+    x = densify(PAPER_MULTI_WAYPOINTS, steps_per_segment)
+    K = x.shape[0] - 1
+    S = np.broadcast_to(sensing * np.eye(2), (K, 2, 2))
+    return sc, bn.BeliefPath.from_sensing(x, sc.P0, S, W=sc.W)
+
+
+@pytest.fixture
+def paper_multi_path():
+    """(paper-multi scenario, a safe 20-step belief path with S_k = 1e4 I)."""
+    return paper_multi_path_pair()
