@@ -13,6 +13,9 @@ from .path import BeliefPath
 from .polytope import Polytope
 from .scenario import Scenario, list_scenarios, load_scenario, save_scenario, scenario_from_dict
 from .verify import VerificationReport, verify
+from .nlp.result import IterationRecord, SmoothResult
+from .nlp.warmstart import WarmStart, warm_start
+from .smoothing import smooth
 
 __version__ = "0.1.0"
 
@@ -20,9 +23,11 @@ __all__ = [
     "BeliefNLPError",
     "BeliefPath",
     "InfeasibleStartError",
+    "IterationRecord",
     "Polytope",
     "Scenario",
     "ScenarioFileError",
+    "SmoothResult",
     "SolverError",
     "ValidationError",
     "VerificationReport",
@@ -32,5 +37,8 @@ __all__ = [
     "load_scenario",
     "save_scenario",
     "scenario_from_dict",
+    "smooth",
     "verify",
+    "warm_start",
+    "WarmStart",
 ]

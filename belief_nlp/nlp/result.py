@@ -1,0 +1,125 @@
+"""SmoothResult: the result type shared by every smoothing method."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ValidationError
+from ..path import BeliefPath
+
+__all__ = ["IterationRecord", "SmoothResult", "STATUSES"]
+
+# Status strings, in one place. ``success`` is True only for "converged".
+STATUSES = {
+    "converged": "relative cost decrease fell below tol",
+    "max_iter": "iteration limit reached (every iterate is feasible; not converged)",
+    "time_limit": "wall-time limit reached (best feasible iterate returned)",
+    "solver_failed": "a subproblem failed twice (best feasible iterate returned)",
+    "non_monotone": "a step would have increased the cost beyond tolerance (rejected; best iterate returned)",
+    "infeasible_iterate": "a solver answer failed the exact safety check (rejected; best iterate returned)",
+    "ipopt_failed": "IPOPT did not reach an acceptable point (best feasible point returned)",
+}
+
+
+@dataclass
+class IterationRecord:
+    """One iteration of a smoother (iteration 0 is the warm start)."""
+
+    iteration: int
+    cost: float
+    control: float
+    information: float
+    solver_status: str = ""
+    solve_time: float = 0.0          # the solver's own time, s
+    build_time: float = 0.0          # assembling / updating the subproblem, s
+    wall_time: float = 0.0           # whole iteration, s
+    solver_iterations: int = 0
+    accepted: bool = True
+    min_margin: float = float("nan")
+
+    def __getitem__(self, key: str) -> Any:     # records read like dicts too
+        return getattr(self, key)
+
+
+@dataclass
+class SmoothResult:
+    """Outcome of :func:`belief_nlp.smooth` (scipy.optimize-style).
+
+    Attributes
+    ----------
+    path : the smoothed BeliefPath (SI units), always the best *feasible* iterate.
+    cost : sum ||dx||^2 + alpha * information (nats), the paper's objective.
+    control, information : the two parts of ``cost``.
+    success : True when the method converged (see ``status``).
+    status, message : one of :data:`STATUSES` and a human-readable sentence.
+    nit : iterations performed (accepted or not).
+    history : one :class:`IterationRecord` per iteration, index 0 = warm start.
+    method, solver : what produced it.
+    timings : {"setup", "total", "solver"} seconds.
+    verification : ``verify(scenario, path).to_dict()`` of the returned path.
+    initial_cost : cost of the warm start.
+    """
+
+    path: BeliefPath
+    cost: float
+    control: float
+    information: float
+    success: bool
+    status: str
+    message: str
+    nit: int
+    history: list[IterationRecord]
+    method: str
+    solver: str
+    alpha: float
+    timings: dict = field(default_factory=dict)
+    verification: dict = field(default_factory=dict)
+    initial_cost: float = float("nan")
+    iterates: list[BeliefPath] | None = field(default=None, repr=False)
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.path.x
+
+    @property
+    def fun(self) -> float:
+        return self.cost
+
+    @property
+    def safe(self) -> bool:
+        return bool(self.verification.get("safe", False))
+
+    def to_dict(self) -> dict:
+        out = {k: v for k, v in asdict(self).items() if k not in ("path", "history", "iterates")}
+        out["path"] = self.path.to_dict()
+        out["history"] = [asdict(h) for h in self.history]
+        return out
+
+    def save(self, filename: str | Path) -> Path:
+        """Write as JSON (``.json``); :meth:`load` reads it back equal."""
+        filename = Path(filename)
+        if filename.suffix != ".json":
+            raise ValidationError("filename", f"smoothing results are saved as .json, got {filename.suffix!r}")
+        filename.write_text(json.dumps(self.to_dict(), default=float))
+        return filename
+
+    @classmethod
+    def load(cls, filename: str | Path) -> "SmoothResult":
+        data = json.loads(Path(filename).read_text())
+        data["path"] = BeliefPath.from_dict(data["path"])
+        data["history"] = [IterationRecord(**h) for h in data["history"]]
+        return cls(**data)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, SmoothResult):
+            return NotImplemented
+        return self.to_dict() == other.to_dict()
+
+    def __repr__(self) -> str:
+        return (f"SmoothResult(method={self.method!r}, status={self.status!r}, cost={self.cost:.6g}, "
+                f"nit={self.nit}, success={self.success})")

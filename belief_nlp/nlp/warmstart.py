@@ -1,0 +1,225 @@
+"""Turn any belief path into a feasible initial point of the smoothing model.
+
+Steps (paper section IV.B, "Initialization", done exactly rather than by an
+SDP feasibility problem):
+
+1. Map the path's means onto K steps. By default one step per path edge
+   (``K=None``). With ``K`` larger than the number of edges, each edge is cut
+   into equal pieces, steps allotted to edges in proportion to their length
+   (every edge keeps at least one step), so the polyline -- and hence the
+   geometry the planner checked -- is unchanged. K smaller than the number
+   of edges is refused (dropping vertices could cut corners through
+   obstacles).
+2. Re-derive the covariances for the smoother's noise model (W per step,
+   paper eq. 2): at each node the posterior is the largest covariance below
+   both the new prior P_{k-1} + W and the path's own posterior there (the
+   authors' "matrix minimum"), i.e. sensing is only ever added. Where a
+   transition is not clear (the per-step model can be noisier than the
+   planner's per-metre model), the posterior at its start is halved -- more
+   sensing at k-1 -- until it is; the final posterior is halved until its
+   ellipse lies in the target.
+3. Certificates lam_{k,j} of Theorem 1 from the exact transition geometry
+   (the optimal common lambda, which maximises the slack).
+4. The result is checked by :func:`belief_nlp.verify` and by the model.
+
+If the means themselves collide (no covariance can fix it), or the last mean
+is outside the target, :class:`~belief_nlp.errors.InfeasibleStartError`
+names the transition and the obstacle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import belief
+from ..errors import InfeasibleStartError, ValidationError
+from ..geometry import PolytopeSet, containment_margin, transition_minimiser
+from ..path import BeliefPath
+from ..scenario import Scenario
+from ..verify import VerificationReport, verify
+
+__all__ = ["WarmStart", "warm_start", "resample_means"]
+
+# Clearance margin required of the start point, relative to chi2, so that
+# solver rounding in the first subproblem never meets an active constraint
+# exactly (numerics.md: constraints end active at ~1e-7).
+_START_MARGIN = 1e-6
+_MAX_HALVINGS = 60
+
+
+@dataclass
+class WarmStart:
+    """A feasible start of the smoother.
+
+    Attributes
+    ----------
+    path : the per-step BeliefPath (SI) the smoother starts from.
+    lam : (K, J, F) certificates of Theorem 1 in SI units (padded faces zero),
+        hazards ordered as ``scenario.hazards``.
+    report : independent verification of ``path``.
+    added_sensing : number of halvings applied to make transitions clear.
+    """
+
+    path: BeliefPath
+    lam: np.ndarray
+    report: VerificationReport
+    added_sensing: int = 0
+
+    @property
+    def K(self) -> int:
+        return self.path.K
+
+
+def resample_means(x: np.ndarray, K: int | None) -> np.ndarray:
+    """Means on K steps along the polyline x, keeping every vertex (see module doc)."""
+    x = np.asarray(x, float)
+    n_edges = x.shape[0] - 1
+    if K is None or K == n_edges:
+        return x.copy()
+    if not isinstance(K, (int, np.integer)) or K < 1:
+        raise ValidationError("K", f"must be a positive integer, got {K!r}")
+    if K < n_edges:
+        raise ValidationError("K", f"the path has {n_edges} edges; K = {K} would drop vertices "
+                                   "(choose K >= the number of edges or K=None)")
+    lengths = np.linalg.norm(np.diff(x, axis=0), axis=1)
+    steps = np.ones(n_edges, dtype=int)
+    extra = K - n_edges
+    # largest-remainder allocation of the extra steps by length
+    share = lengths / max(lengths.sum(), 1e-300) * K
+    for _ in range(extra):
+        steps[np.argmax(share - steps)] += 1
+    pts = [x[0]]
+    for e in range(n_edges):
+        t = np.arange(1, steps[e] + 1) / steps[e]
+        pts.extend(x[e] + t[:, None] * (x[e + 1] - x[e]))
+    return np.array(pts)
+
+
+def _target_posteriors(path: BeliefPath, x_new: np.ndarray) -> np.ndarray:
+    """Path posterior at each new node: at old vertices their own, inside an
+    edge the matrix minimum of the two ends (the smaller ellipse)."""
+    x_old = path.x
+    out = np.empty((x_new.shape[0], path.dim, path.dim))
+    j = 0
+    for i, p in enumerate(x_new):
+        while j < x_old.shape[0] - 1 and not np.allclose(p, x_old[j]) and not _on_segment(p, x_old[j], x_old[j + 1]):
+            j += 1
+        if np.allclose(p, x_old[j]):
+            out[i] = path.P[j]
+        elif j + 1 < x_old.shape[0] and np.allclose(p, x_old[j + 1]):
+            out[i] = path.P[j + 1]
+        else:
+            out[i] = belief.matrix_minimum(path.P[j], path.P[min(j + 1, x_old.shape[0] - 1)])
+    return out
+
+
+def _on_segment(p, a, b) -> bool:
+    ab = b - a
+    L2 = float(ab @ ab)
+    if L2 == 0:
+        return bool(np.allclose(p, a))
+    t = float((p - a) @ ab) / L2
+    return -1e-12 <= t <= 1 + 1e-12 and np.allclose(a + t * ab, p, atol=1e-12)
+
+
+def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None) -> WarmStart:
+    """A feasible initial point of the smoother built from ``path``.
+
+    ``path`` may come from the planner (per-metre noise), a file, or a user's
+    polyline with covariances (see :meth:`BeliefPath.from_covariances`). It must
+    start at the scenario's start mean. See the module docstring for what
+    happens to covariances and sensing.
+    """
+    if not isinstance(path, BeliefPath):
+        raise ValidationError("path", f"must be a BeliefPath, got {type(path).__name__}")
+    if path.dim != scenario.dim:
+        raise ValidationError("path", f"dimension {path.dim} does not match the scenario's {scenario.dim}")
+    if not np.allclose(path.x[0], scenario.x0, atol=1e-9):
+        raise ValidationError("path.x", "the path must start at the scenario's start mean x0")
+    x = resample_means(path.x, K)
+    K_ = x.shape[0] - 1
+    target_P = _target_posteriors(path, x)
+    chi2 = scenario.chi2
+    hazards = PolytopeSet.build(scenario.hazards)
+    thr = chi2 * (1 + _START_MARGIN)
+    W = scenario.W
+    P = np.empty((K_ + 1, scenario.dim, scenario.dim))
+    P[0] = scenario.P0
+    halvings = 0
+    for k in range(1, K_ + 1):
+        while True:
+            tm = transition_minimiser(x[k - 1], P[k - 1], x[k], W, hazards, threshold=thr)
+            bad = np.nonzero(tm.dist2[0] < thr)[0]
+            if bad.size == 0:
+                break
+            if k == 1 or halvings > _MAX_HALVINGS * K_ or np.max(np.linalg.eigvalsh(P[k - 1])) < 1e-14 * max(1.0, np.trace(W)):
+                j = int(bad[0])
+                raise InfeasibleStartError(
+                    f"transition {k} (from {x[k - 1].round(6).tolist()} to {x[k].round(6).tolist()}) "
+                    f"cannot be made clear of {scenario.hazards[j].name}: the means themselves are too close "
+                    f"(or the start covariance is too large)", transition=k, obstacle=scenario.hazards[j].name)
+            P[k - 1] = 0.5 * P[k - 1]
+            halvings += 1
+        P_prior = P[k - 1] + W
+        P[k] = belief.matrix_minimum(P_prior, target_P[k]) if k < K_ else belief.matrix_minimum(P_prior, target_P[k])
+    # final posterior inside the target
+    T = scenario.target
+    if not T.contains(x[-1]):
+        raise InfeasibleStartError("the path's last mean is outside the target", transition=K_, obstacle="target")
+    while containment_margin(x[-1], P[-1], T.A, T.b, chi2) < 1e-9:
+        P[-1] = 0.5 * P[-1]
+        halvings += 1
+        if halvings > _MAX_HALVINGS * (K_ + 1):
+            raise InfeasibleStartError("cannot fit the final ellipse into the target", transition=K_, obstacle="target")
+    P_prior = np.empty_like(P)
+    P_prior[0] = P[0]
+    P_prior[1:] = P[:-1] + W
+    S = np.zeros_like(P)
+    S[1:] = belief.lossless_sensing(P_prior[1:], P[1:])
+    S = 0.5 * (S + np.swapaxes(S, -1, -2))
+    # clip tiny negative eigenvalues from rounding: sensing is PSD by construction
+    w, V = np.linalg.eigh(S)
+    S = (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
+    ws_path = BeliefPath.from_sensing(x, scenario.P0, S, W=W, noise="per_step",
+                                      meta={**path.meta, "warm_start_from": path.meta.get("source", "path")})
+    lam = certificates(scenario, ws_path, hazards)
+    report = verify(scenario, ws_path)
+    if not report.safe:
+        raise InfeasibleStartError(f"warm start failed verification: {report.summary()}")
+    return WarmStart(ws_path, lam, report, halvings)
+
+
+def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | None = None,
+                 margin: float = _START_MARGIN) -> np.ndarray:
+    """Theorem-1 certificates (K, J, F), SI units, for every transition of a path.
+
+    The margin-maximising lambda* (the maximiser of the Lemma-1 dual at the
+    worst s) grows like distance / variance, which is huge next to a tiny
+    start covariance (P0 = 1e-9 I) and makes the next conic subproblem badly
+    scaled. Both end conditions are concave in a scaling t of lambda*, so we
+    return the smallest t * lambda* that still gives
+    f_s(t lambda*) >= chi2 (1 + margin) at s = 0 and s = 1 (t = 1 when the
+    transition has less slack than that).
+    """
+    hazards = hazards or PolytopeSet.build(scenario.hazards)
+    x0, x1 = path.x[:-1], path.x[1:]
+    P0 = path.P[:-1]
+    P1 = P0 + path.transition_noise
+    tm = transition_minimiser(x0, P0, x1, path.transition_noise, hazards, want_lam=True)
+    lam = tm.lam                                                # (K, J, F)
+    target = scenario.chi2 * (1 + margin)
+    v = np.einsum("jfd,kjf->kjd", hazards.A, lam)
+    t_min = np.zeros(lam.shape[:2])
+    for xe, Pe in ((x0, P0), (x1, P1)):
+        # f(t) = -t^2 a + 2 t beta with a = v^T P v, beta = lam^T (A x - b)
+        a = np.einsum("kjd,kde,kje->kj", v, Pe, v)
+        beta = np.einsum("kjf,kjf->kj", lam, np.einsum("jfd,kd->kjf", hazards.A, xe) - hazards.b[None])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            disc = beta**2 - a * target
+            t_lo = np.where(a > 0, (beta - np.sqrt(np.maximum(disc, 0.0))) / a, target / (2 * beta))
+        t_lo = np.where(np.isfinite(t_lo) & (disc >= 0), t_lo, 1.0)
+        t_min = np.maximum(t_min, t_lo)
+    t = np.clip(t_min, 0.0, 1.0)
+    return lam * t[..., None]
