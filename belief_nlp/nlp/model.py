@@ -247,6 +247,16 @@ class BeliefModel:
         mats = _sym(np.stack(np.split(g, K - 1, axis=1)))
         return np.linalg.eigvalsh(mats)[:, 0]
 
+    def kalman_relative_gap(self, z: Layout) -> float:
+        """max_k ||Q_k^-1 - (Y_{k-1}^-1 + W)|| / ||Q_k^-1|| over k >= 2: how far the
+        relaxation (prob_2) is from the Kalman equality (Lemma 2 says 0 at the optimum)."""
+        D = self.data
+        if D.K < 2:
+            return 0.0
+        Pq = np.linalg.inv(z.Q[2:])
+        Pk = np.linalg.inv(z.Y[1:-1]) + D.W
+        return float(np.max(np.linalg.norm(Pq - Pk, axis=(1, 2)) / np.linalg.norm(Pq, axis=(1, 2))))
+
     # ------------------------------------------------------ conversions
     def tighten(self, z: Layout) -> Layout:
         """Replace Q by the Kalman recursion from S (Lemma 2): stays feasible

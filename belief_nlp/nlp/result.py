@@ -41,6 +41,7 @@ class IterationRecord:
     solver_iterations: int = 0
     accepted: bool = True
     min_margin: float = float("nan")
+    kalman_gap: float = float("nan")  # max rel. gap of the solver's Q_k to the Kalman recursion (Lemma 2)
 
     def __getitem__(self, key: str) -> Any:     # records read like dicts too
         return getattr(self, key)

@@ -199,9 +199,11 @@ def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | No
     worst s) grows like distance / variance, which is huge next to a tiny
     start covariance (P0 = 1e-9 I) and makes the next conic subproblem badly
     scaled. Both end conditions are concave in a scaling t of lambda*, so we
-    return the smallest t * lambda* that still gives
-    f_s(t lambda*) >= chi2 (1 + margin) at s = 0 and s = 1 (t = 1 when the
-    transition has less slack than that).
+    return the smallest t * lambda* that still leaves a comfortable slack,
+    f_s(t lambda*) >= chi2 + min(chi2, (g* - chi2) / 2) at s = 0 and s = 1
+    (g* = min_s dist2; t = 1 when the transition has less slack than
+    chi2 * margin). Strictly interior certificates keep the interior-point
+    solver away from the boundary of every cone at once.
     """
     hazards = hazards or PolytopeSet.build(scenario.hazards)
     x0, x1 = path.x[:-1], path.x[1:]
@@ -209,7 +211,8 @@ def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | No
     P1 = P0 + path.transition_noise
     tm = transition_minimiser(x0, P0, x1, path.transition_noise, hazards, want_lam=True)
     lam = tm.lam                                                # (K, J, F)
-    target = scenario.chi2 * (1 + margin)
+    chi2 = scenario.chi2
+    target = chi2 + np.maximum(chi2 * margin, np.minimum(chi2, 0.5 * (tm.dist2 - chi2)))
     v = np.einsum("jfd,kjf->kjd", hazards.A, lam)
     t_min = np.zeros(lam.shape[:2])
     for xe, Pe in ((x0, P0), (x1, P1)):
