@@ -100,7 +100,9 @@ def test_target_containment_uses_the_corrected_sign(paper_run):
     ws = bn.warm_start(sc, p)
     z = model.tighten(model.from_path(ws.path, ws.lam))
     sub = ConicSubproblem(model.data)
-    data = sub.build(z, np.ones((p.K, model.data.J)), np.ones((p.K, model.data.J)), model.logdet_gradients(z))
+    one = np.ones((p.K, model.data.J))
+    data = sub.build(z, one, one, model.logdet_gradients(z), model.bilinear_gradients(z, False),
+                     model.bilinear_gradients(z, True))
     viol = data.slack_violations(sub.point_vector(z))
     assert np.max(viol) < 1e-9
 
@@ -113,7 +115,7 @@ def test_current_point_is_feasible_for_its_subproblem(paper_run):
     z = model.tighten(model.from_path(ws.path, ws.lam))
     sub = ConicSubproblem(model.data)
     rho = initial_rho(model, z)
-    data = sub.build(z, rho, rho, model.logdet_gradients(z))
+    data = sub.build(z, rho, rho, model.logdet_gradients(z), model.bilinear_gradients(z, False), model.bilinear_gradients(z, True))
     assert np.max(data.slack_violations(sub.point_vector(z))) < 1e-9
     # and Clarabel's subproblem optimum is at least as good as the current point
     status, sol, _, _ = _ClarabelRunner({}).solve(data)
@@ -132,7 +134,7 @@ def test_direct_clarabel_agrees_with_cvxpy_on_a_subproblem():
     z = model.tighten(model.from_path(ws.path, ws.lam))
     sub = ConicSubproblem(model.data)
     rho = initial_rho(model, z)
-    data = sub.build(z, rho, rho, model.logdet_gradients(z))
+    data = sub.build(z, rho, rho, model.logdet_gradients(z), model.bilinear_gradients(z, False), model.bilinear_gradients(z, True))
     s1, x1, _, _ = _ClarabelRunner({}).solve(data)
     # same Clarabel setting as our driver (equilibration off, see ccp.py)
     s2, x2, _, _ = _cvxpy_solve(data, "CLARABEL", {"equilibrate_enable": False})
@@ -197,3 +199,18 @@ def test_bad_options_are_named(kwargs, field):
     with pytest.raises(ValidationError) as exc:
         bn.smooth(sc, path, **kwargs)
     assert exc.value.field == field
+
+
+def test_casadi_linearisation_matches_the_analytic_gradients():
+    """The CCP linearisation comes from the CasADi model: grad of log det Y is
+    Y^-1, grad of 2 lam^T (A x - b) is (2 (A x - b), 2 A^T lam)."""
+    sc, path = paper_multi_path_pair(steps_per_segment=1)
+    ws = bn.warm_start(sc, path)
+    model = BeliefModel(sc, ws.K, 0.1)
+    z = model.tighten(model.from_path(ws.path, ws.lam))
+    assert np.allclose(model.logdet_gradients(z), np.linalg.inv(z.Y[1:]), rtol=1e-10)
+    D = model.data
+    g_lam, g_x = model.bilinear_gradients(z, end=True)
+    expect_lam = 2 * (np.einsum("jfd,kd->kjf", D.A, z.x[1:]) - D.b[None])
+    assert np.allclose(g_lam, expect_lam, rtol=1e-12, atol=1e-9)
+    assert np.allclose(g_x, 2 * np.einsum("jfd,kjf->kjd", D.A, z.lam), rtol=1e-12, atol=1e-9)

@@ -257,9 +257,9 @@ def ccp(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, max
             break
         nit = it
         t_it = time.perf_counter()
-        G = model.logdet_gradients(z)
         v = _pair_vectors(model, z)
-        data = sub.build(z, rho_start, rho_end, G)
+        data = sub.build(z, rho_start, rho_end, model.logdet_gradients(z),
+                         model.bilinear_gradients(z, end=False), model.bilinear_gradients(z, end=True))
         if _fail_at is not None and it >= _fail_at:
             data.b = data.b.copy()
             data.b[:] = np.nan  # forced failure (tests)

@@ -200,14 +200,16 @@ class ConicSubproblem:
             if const is not None:
                 acc.const(base + p, s * np.asarray(const))
 
-    def build(self, z: Layout, rho_start: np.ndarray, rho_end: np.ndarray,
-              grad_logdet: np.ndarray) -> SubproblemData:
+    def build(self, z: Layout, rho_start: np.ndarray, rho_end: np.ndarray, grad_logdet: np.ndarray,
+              grad_start: tuple[np.ndarray, np.ndarray], grad_end: tuple[np.ndarray, np.ndarray]) -> SubproblemData:
         """Conic data linearised at ``z``; the mean variables are the steps
         delta_k = x_k - x~_k (see :meth:`extract`).
 
         rho_* (K, J) split weights of the collision constraints at the start
         and end of each transition; grad_logdet (K, d, d) = Y~_k^-1, the
-        gradient of the concave objective part from the CasADi model.
+        gradient of the concave objective part; grad_start / grad_end the
+        gradients (d/dlam (K, J, F), d/dx (K, J, d)) of the bilinear
+        collision term at both ends -- all from the CasADi model.
         """
         cl = self._clarabel
         D = self.D
@@ -265,9 +267,9 @@ class ConicSubproblem:
 
         # collision constraints (transition k, hazard j), Theorem 1
         v_t = np.einsum("jfd,kjf->kjd", D.A, z.lam)      # v~ = A^T lam~
-        self._collision_end(acc, z, v_t, rho_end)
+        self._collision_end(acc, grad_end, v_t, rho_end)
         if K > 1:
-            self._collision_start(acc, z, v_t, rho_start)
+            self._collision_start(acc, grad_start, v_t, rho_start)
         self._collision_first(acc)
         self._target(acc, z)
 
@@ -298,17 +300,17 @@ class ConicSubproblem:
                     acc.term(rows, imap[ks, i - 1, j - 1][:, None], s)
                 acc.const(rows, s * Yconst[:, i - 1, j - 1][:, None])
 
-    def _h2(self, acc: _Acc, ks: np.ndarray, iR: np.ndarray, idk: np.ndarray, x_t: np.ndarray,
-            v_t: np.ndarray, rho: np.ndarray) -> None:
-        """Convexified h2 in step variables delta = x - x~ (lam enters through v = A^T lam):
+    def _h2(self, acc: _Acc, ks: np.ndarray, iR: np.ndarray, idk: np.ndarray, g_lam: np.ndarray,
+            g_x: np.ndarray, v_t: np.ndarray, rho: np.ndarray) -> None:
+        """Convexified h2 in step variables delta = x - x~ (model.py, DC split):
 
             1/2 ||sqrt(rho) (v - v~) - delta / sqrt(rho)||^2
-                <= -R - chi2 + 2 lam^T (A x~ - b) + 2 v~^T delta
+                <= -R - chi2 + lam^T g_lam + delta^T g_x
 
-        This is R + chi2 - 2 lam^T (A x - b) <= 0 with the bilinear part
-        -2 (v - v~)^T delta replaced by its convex majorant (the linearised
-        DC split of model.py), written around the current point so that no
-        large constants cancel."""
+        i.e. R + chi2 - 2 lam^T (A x - b) <= 0 with the bilinear term replaced
+        by its convex majorant; g_lam = 2 (A x~ - b) and g_x = 2 v~ are the
+        gradient of h = 2 lam^T (A x - b) at the current point (CasADi model),
+        and h~ - grad h~ . (lam~, 0) = 0 because h is bilinear."""
         cl = self._clarabel
         D = self.D
         J, d = D.J, D.d
@@ -316,12 +318,10 @@ class ConicSubproblem:
         base = acc.rows(nk * J, d + 2, cl.SecondOrderConeT(d + 2)).reshape(nk, J)
         lam = self.ilam[ks - 1]                                          # (nk, J, F)
         sr = np.sqrt(rho)                                                # (nk, J)
-        lam_w = 2 * (np.einsum("jfd,kd->kjf", D.A, x_t) - D.b[None])     # 2 (A x~ - b)
-        d_w = 2 * v_t                                                    # (nk, J, d)
         for row, off in ((base, 1.0), (base + d + 1, -1.0)):
             acc.term(row, iR, -1 / _SQ2)
-            acc.term(row[..., None], lam, lam_w / _SQ2)
-            acc.term(row[..., None], idk[:, None, :], d_w / _SQ2)
+            acc.term(row[..., None], lam, g_lam / _SQ2)
+            acc.term(row[..., None], idk[:, None, :], g_x / _SQ2)
             acc.const(row, (-self.chi2 + off) / _SQ2)
         for i in range(d):
             row = base + 1 + i
@@ -329,16 +329,16 @@ class ConicSubproblem:
             acc.term(row, idk[:, None, i], -1 / sr)
             acc.const(row, -sr * v_t[..., i])
 
-    def _collision_end(self, acc, z: Layout, v_t: np.ndarray, rho: np.ndarray) -> None:
+    def _collision_end(self, acc, grads, v_t: np.ndarray, rho: np.ndarray) -> None:
         D = self.D
         K = D.K
         ks = np.arange(1, K + 1)
         Yconst = np.zeros((K, D.d, D.d))
         Yconst[0] = D.Q1                                   # Q_1 fixed
         self._h1(acc, ks, self.iR1, [self.iQ], Yconst)
-        self._h2(acc, ks, self.iR1, self.ix[ks], z.x[ks], v_t, rho)
+        self._h2(acc, ks, self.iR1, self.ix[ks], *grads, v_t, rho)
 
-    def _collision_start(self, acc, z: Layout, v_t: np.ndarray, rho: np.ndarray) -> None:
+    def _collision_start(self, acc, grads, v_t: np.ndarray, rho: np.ndarray) -> None:
         D = self.D
         K = D.K
         ks = np.arange(2, K + 1)
@@ -348,7 +348,7 @@ class ConicSubproblem:
         shiftQ = np.concatenate([self.iQ[:1], self.iQ[:-1]])
         shiftS = np.concatenate([self.iS[:1], self.iS[:-1]])
         self._h1(acc, ks, self.iR0[1:], [shiftQ, shiftS], Yconst)
-        self._h2(acc, ks, self.iR0[1:], self.ix[ks - 1], z.x[ks - 1], v_t[1:], rho[1:])
+        self._h2(acc, ks, self.iR0[1:], self.ix[ks - 1], grads[0][1:], grads[1][1:], v_t[1:], rho[1:])
 
     def _collision_first(self, acc) -> None:
         """k = 1, start end (errata 8): ||P0^1/2 v||^2 <= 2 lam^T (A x0 - b) - chi2."""

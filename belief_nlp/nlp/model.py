@@ -25,14 +25,18 @@ as half-spaces) with v = A_j^T lam, c(x) = A_j x - b_j:
 and target containment of the final posterior (final_cond with errata 4):
   b_n - a_n^T x_K - chi sqrt(a_n^T Y_K^-1 a_n) >= 0.
 
-DC split. The objective's concave part is alpha/2 log det Y_k. In each
-collision constraint the bilinear term -2 v^T x is split as
-  1/2 ||sqrt(rho) v - x / sqrt(rho)||^2  -  1/2 ||sqrt(rho) v + x / sqrt(rho)||^2
-(convex minus convex); CCP linearises the second part. Any rho > 0 gives a
-valid majorant tight at the current point, so rho may change per iteration
-(we adapt it to the last step). The paper's split (eq. doc) is the same idea
-with (A x - b, lam) in place of (x, v) and rho = 1, which mixes quantities of
-very different size -- the fragility numerics.md reports.
+DC split. The objective's concave part is alpha/2 log det Y_k (linearised
+by its gradient Y~_k^-1). In each collision constraint the bilinear term
+h(lam, x) = 2 lam^T (A x - b) is expanded exactly around the current point,
+h = h~ + grad h~ . (dlam, dx) + 2 dv^T dx (dv = A^T dlam), and the last,
+indefinite part is split as convex minus convex,
+  -2 dv^T dx = 1/2 ||sqrt(rho) dv - dx/sqrt(rho)||^2 - 1/2 ||sqrt(rho) dv + dx/sqrt(rho)||^2,
+whose concave half linearises to 0 at the current point. The result is a
+convex majorant tight at the current point (CCP's requirement), and any
+rho > 0 is valid, so rho may change per iteration (we adapt it to the last
+step). The paper's split (eq. doc) is the same idea with (A x - b, lam) in
+place of (dx, dv), rho = 1, and not centred at the current point: it mixes
+quantities of very different size, the fragility numerics.md reports.
 """
 
 from __future__ import annotations
@@ -147,14 +151,16 @@ class BeliefModel:
         logdet_Y = ca.log(ca.det(Y))
         self.f_logdet_grad = ca.Function("logdet_grad", [Y], [logdet_Y, ca.gradient(logdet_Y, Y)],
                                          ["Y"], ["logdet", "grad"])
-        # concave part of one collision constraint: -1/2 ||sqrt(rho) v + x / sqrt(rho)||^2
-        v = ca.SX.sym("v", d)
+        # bilinear part of one collision end, h(lam, x) = 2 lam^T (A x - b), and
+        # its gradient: the linear part of CCP's majorant (see module doc)
         x = ca.SX.sym("x", d)
-        rho = ca.SX.sym("rho")
-        u = ca.sqrt(rho) * v + x / ca.sqrt(rho)
-        h = -0.5 * ca.dot(u, u)
-        self.f_col_concave = ca.Function("col_concave", [v, x, rho], [h, ca.gradient(h, ca.vertcat(v, x))],
-                                         ["v", "x", "rho"], ["value", "grad"])
+        lam_h = ca.SX.sym("lam", F)
+        A_h = ca.SX.sym("A", F, d)
+        b_h = ca.SX.sym("b", F)
+        h = 2 * ca.dot(lam_h, A_h @ x - b_h)
+        self.f_bilinear = ca.Function("bilinear", [lam_h, x, A_h, b_h],
+                                      [h, ca.gradient(h, lam_h), ca.gradient(h, x)],
+                                      ["lam", "x", "A", "b"], ["value", "grad_lam", "grad_x"])
         # full collision margin of one end (Lemma 1 form):
         # -v^T Y^-1 v + 2 lam^T (A x - b) - chi2  (>= 0 is clear)
         lam = ca.SX.sym("lam", F)
@@ -195,14 +201,20 @@ class BeliefModel:
         g = np.asarray(f(Yh)[1])
         return _sym(np.stack(np.split(g, self.data.K, axis=1)))
 
-    def collision_linearisation(self, v: np.ndarray, x: np.ndarray, rho: np.ndarray) -> np.ndarray:
-        """u~ = sqrt(rho) v + x / sqrt(rho) at many points (CasADi gradient of the
-        concave part is -u~); v, x (n, d), rho (n,) -> (n, d)."""
-        n, d = x.shape
-        f = self.f_col_concave.map(n)
-        g = np.asarray(f(v.T, x.T, rho[None, :])[1])            # (2d, n)
-        # gradient w.r.t. v is -sqrt(rho) u, w.r.t. x is -u / sqrt(rho)
-        return -(g[d:, :] * np.sqrt(rho)[None, :]).T
+    def bilinear_gradients(self, z: Layout, end: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Gradient of h(lam, x) = 2 lam^T (A x - b) at the current point for every
+        transition k and hazard j, at the transition's end (x_k) or start
+        (x_{k-1}); from the CasADi model. Returns (d/dlam (K, J, F), d/dx (K, J, d))."""
+        D = self.data
+        K, J, F, d = D.K, D.J, D.F, D.d
+        n = K * J
+        xs = z.x[1:] if end else z.x[:-1]
+        f = self.f_bilinear.map(n)
+        lam = z.lam.reshape(n, F).T
+        A = np.concatenate([D.A] * K, axis=0)                      # (n, F, d)
+        _, g_lam, g_x = f(lam, np.repeat(xs, J, axis=0).T, np.concatenate(list(A), axis=1),
+                          np.tile(D.b, (K, 1)).T)
+        return (np.asarray(g_lam).T.reshape(K, J, F), np.asarray(g_x).T.reshape(K, J, d))
 
     def transition_margins(self, z: Layout) -> tuple[np.ndarray, np.ndarray]:
         """Lemma-1 margins of both ends of every transition and hazard (scaled
