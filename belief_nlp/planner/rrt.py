@@ -1,0 +1,521 @@
+"""IG-RRT*: RRT* in Gaussian belief space (Pedram & Tanaka), with exact safety.
+
+Nodes are beliefs (x, P). One iteration (one new node):
+
+1. **Sample** (x_s, P_s) (see :class:`~.sampling.BeliefSampler`).
+2. **Nearest** live node in the edge cost, with the authors' matrix minimum
+   standing in for P_s when the step is not lossless (vectorised over nodes).
+3. **Steer**: when the nearest is farther than the rewiring radius r, move the
+   sample to the fraction r / D of the way from it (x and P interpolated).
+4. **Shrink** P until its confidence ellipse clears every obstacle and wall.
+   The authors halve P and re-check; one exact distance gives the number of
+   halvings directly. A mean inside a hazard rejects the sample.
+5. **Parent**: candidates are live nodes with a lossless edge of cost <= r.
+   They are examined in order of cost-to-come through them and the first
+   collision-free one is the parent, i.e. exactly the cheapest
+   collision-free candidate while checking only as many edges as needed.
+6. **Rewire**: live neighbours v with a lossless edge q -> v of cost <= r
+   that would lower v's cost; the cost change propagates to v's subtree.
+7. **Goal**: the node is a goal when its ellipse lies inside the target.
+8. **Branch-and-bound**: drop nodes whose cost-to-come plus an admissible,
+   consistent cost-to-go bound h exceeds the best cost (so a kept node's
+   ancestors are kept, and the best path is never touched).
+
+Edge collision decisions are exact in continuous time (paper Theorem 1; see
+:mod:`.collision`), never sampled, and the edges of one iteration (the
+parent candidates examined and all rewiring candidates) go to the checker in
+one batch; a second batch is needed only when every candidate of the first
+chunk of parents collides. Step 1-4 samples that get no node do not count
+as nodes (as the authors' loop); they count as attempts.
+
+The radius follows the authors: r_n = min(max_radius, gamma (log n / n)^(1/d))
+with n the number of live nodes plus one.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from .. import belief
+from ..errors import ValidationError
+from ..path import BeliefPath
+from ..scenario import Scenario
+from .collision import CollisionChecker
+from .kernels import chol_factors
+from .metrics import EdgeMetric
+from .options import PlannerOptions, default_gamma, resolve_options
+from .result import PlanResult, TreeView
+from .sampling import BeliefSampler
+from .tree import BeliefTree
+
+__all__ = ["IGRRTStar", "plan"]
+
+log = logging.getLogger("belief_nlp.planner")
+
+_PARENT_CHUNK = 8          # parent candidates in the first collision batch (doubles after)
+_REL_EPS = 1e-12           # relative tie tolerance for cost comparisons
+_EIG_FLOOR_FACTOR = 1e-3   # samples shrunk below 1e-3 * eig_range[0] are rejected
+
+
+def _polytope_volume(poly) -> float:
+    from scipy.spatial import ConvexHull
+
+    return float(ConvexHull(poly.vertices).volume)
+
+
+class IGRRTStar:
+    """The IG-RRT* planner for one scenario and one set of options.
+
+    Parameters
+    ----------
+    scenario : :class:`~belief_nlp.Scenario`
+    **options : any field of :class:`~.options.PlannerOptions`; defaults come
+        from the scenario's ``[planner]`` table, then the built-in defaults.
+        Invalid values raise :class:`~belief_nlp.errors.ValidationError`.
+
+    Call :meth:`plan` to run; the tree of the last run stays available as
+    ``tree_`` (a :class:`~.tree.BeliefTree`).
+    """
+
+    def __init__(self, scenario: Scenario, **options: Any):
+        if not isinstance(scenario, Scenario):
+            raise ValidationError("scenario", f"must be a Scenario, got {type(scenario).__name__}")
+        self.scenario = scenario
+        self.options: PlannerOptions = resolve_options(scenario.planner, scenario.alpha, **options)
+        o = self.options
+        sc = scenario
+        self.dim = sc.dim
+        self.per_metre = o.noise == "per_metre"
+        self.W_edge = sc.W_rate if self.per_metre else sc.W
+        self.metric = EdgeMetric(o.metric, o.alpha, o.info_unit, self.W_edge)
+        self.gamma = o.gamma if o.gamma is not None else default_gamma(self.dim, _polytope_volume(sc.domain))
+        # Cost-to-go bound for branch-and-bound, h(x, P) = dist_lb(x) + weight * info_lb(P):
+        # dist_lb = largest violated target face (a lower bound of the Euclidean
+        # distance to the target, 1-Lipschitz); for the entropy metric,
+        # info_lb = max(0, 1/2 (log det P - log det P_max)) where P_max bounds the
+        # covariance of any ellipse inside the target by volume. Along any lossless
+        # path the information is >= 1/2 (log det P_start - log det P_end) (the
+        # prediction only adds noise), so h is admissible and consistent.
+        self._tA, self._tb = sc.target.A, sc.target.b
+        zeta = math.pi ** (self.dim / 2) / math.gamma(self.dim / 2 + 1)
+        self._logdet_max = 2.0 * math.log(_polytope_volume(sc.target) / zeta) - self.dim * math.log(sc.chi2)
+        self.tree_: BeliefTree | None = None
+
+    # ---------------------------------------------------------------- helpers
+    def _h(self, x: np.ndarray, logdet_P: float) -> float:
+        dist = max(0.0, float(np.max(self._tA @ x - self._tb)))
+        if self.metric.metric != "entropy":
+            return dist
+        return dist + self.metric.weight * max(0.0, 0.5 * (logdet_P - self._logdet_max))
+
+    def _steer(self, xn: np.ndarray, Pn: np.ndarray, xs: np.ndarray, Ps: np.ndarray,
+               t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Move the sample (xs, Ps) to the fraction t of the way from the nearest node (xn, Pn).
+
+        ``"linear"`` (the authors): x and P interpolated linearly (t = 1 keeps
+        the sample). ``"geodesic"``: x interpolated; with P_hat the prior
+        predicted from the node to the new mean, and P_s = L U D U^T L^T
+        (P_hat = L L^T), P = L U min(D, 1)^t U^T L^T: the matrix-geometric
+        interpolation from P_hat toward the matrix minimum of (P_hat, P_s). It
+        is below P_hat, so the step from the nearest node is always lossless,
+        and its information is t times that of the full step; with t = r / D
+        the nearest node is always a parent candidate. (Eigenvalues are capped
+        at 1 - 1e-6 so that every step senses a little: an exactly sensing-free
+        direction would make S = P^-1 - P_hat^-1 a rounding-noise matrix.)
+        """
+        x = xn + t * (xs - xn)
+        if self.options.steering == "linear":
+            P = Pn + t * (Ps - Pn)
+            return x, 0.5 * (P + P.T)
+        w = float(np.linalg.norm(x - xn)) if self.per_metre else 1.0
+        P_hat = Pn + w * self.W_edge
+        try:
+            L, Linv, _, _ = chol_factors(0.5 * (P_hat + P_hat.T))
+        except np.linalg.LinAlgError:  # singular prior (P0 = 0 and no motion): keep the sample's P
+            return x, Ps
+        M = Linv @ Ps @ Linv.T
+        lam, U = np.linalg.eigh(0.5 * (M + M.T))
+        lam = np.minimum(np.minimum(np.maximum(lam, 1e-300), 1.0) ** t, 1.0 - 1e-6)
+        LU = L @ U
+        P = (LU * lam) @ LU.T
+        return x, 0.5 * (P + P.T)
+
+    def _radius(self, n_live: int) -> float:
+        n = n_live + 1
+        return min(self.options.max_radius, self.gamma * (math.log(n) / n) ** (1.0 / self.dim))
+
+    # ------------------------------------------------------------------- plan
+    def plan(self) -> PlanResult:
+        """Grow the tree until the node budget, the time limit or convergence;
+        return the best verified path (see :class:`~.result.PlanResult`)."""
+        o = self.options
+        sc = self.scenario
+        t_start = time.perf_counter()
+        cpu_start = time.process_time()
+        rng = np.random.default_rng(o.seed)
+        sampler = BeliefSampler(sc, o.eig_range, o.eig_ratio, o.goal_bias)
+        checker = CollisionChecker(sc, o.safety_margin)
+        tree = BeliefTree(self.dim, capacity=min(o.n_nodes, 4096))
+        self.tree_ = tree
+        root_logdet = _safe_logdet(sc.P0)
+        tree.add(sc.x0, sc.P0, -1, 0.0, 0.0, self._h(sc.x0, root_logdet), goal=False)
+        # (The root is never a goal: a path needs at least one transition.)
+
+        max_attempts = o.max_attempts if o.max_attempts is not None else 200 * o.n_nodes + 1000
+        stats: dict[str, Any] = {"attempts": 0, "rejected_in_hazard": 0, "rejected_too_small": 0,
+                                 "rejected_no_candidate": 0, "rejected_all_colliding": 0,
+                                 "parent_candidates": 0, "rewire_candidates": 0, "rewires": 0,
+                                 "pruned": 0, "revived": 0, "hopeless_nodes": 0, "goal_nodes": 0,
+                                 "second_batches": 0}
+        timings = {"sample": 0.0, "candidates": 0.0, "collision": 0.0, "rewire": 0.0, "prune": 0.0}
+        self._stats, self._timings = stats, timings
+        history: list[float] = [math.inf]
+        best, best_node = math.inf, -1
+        first_solution: int | None = None
+        stop_reason = "node budget reached"
+
+        progress = None
+        if o.progress:
+            from tqdm.auto import tqdm
+
+            progress = tqdm(total=o.n_nodes, initial=1, desc="IG-RRT*", unit="node")
+        log.info("IG-RRT* on %r: n_nodes=%d seed=%s metric=%s noise=%s alpha=%g", sc.name, o.n_nodes, o.seed,
+                 o.metric, o.noise, o.alpha)
+        try:
+            while tree.n < o.n_nodes:
+                if o.time_limit is not None and time.perf_counter() - t_start > o.time_limit:
+                    stop_reason = f"time limit of {o.time_limit:g} s reached"
+                    break
+                if stats["attempts"] >= max_attempts:
+                    stop_reason = f"attempt limit of {max_attempts} reached"
+                    break
+                stats["attempts"] += 1
+                q = self._iterate(rng, sampler, checker, tree, best)
+                if q is None:
+                    continue
+                # best cost: costs of goal nodes may have dropped by rewiring
+                improved = False
+                goals = np.flatnonzero(tree.goal[: tree.n] & tree.live[: tree.n])
+                if goals.size:
+                    j = int(np.argmin(tree.cost[goals]))
+                    if tree.cost[goals[j]] < best:
+                        best, best_node = float(tree.cost[goals[j]]), int(goals[j])
+                        if first_solution is None:
+                            first_solution = tree.n
+                            log.info("first solution at node %d: cost %.6g", tree.n, best)
+                        else:
+                            log.debug("node %d: best cost %.6g", tree.n, best)
+                        improved = True
+                if o.branch_and_bound and math.isfinite(best) and (improved or tree.n % o.prune_every == 0):
+                    self._prune(tree, best, best_node)
+                history.append(best)
+                if progress is not None:
+                    progress.update(1)
+                    if math.isfinite(best):
+                        progress.set_postfix(best=f"{best:.4g}", refresh=False)
+                w = o.convergence_window
+                if (o.convergence_tol is not None and math.isfinite(best) and len(history) > w
+                        and history[-1 - w] - best <= o.convergence_tol * abs(best)):
+                    stop_reason = (f"converged: best cost improved by <= {o.convergence_tol:g} (relative) "
+                                   f"over the last {w} nodes")
+                    break
+        finally:
+            if progress is not None:
+                progress.close()
+
+        stats.update({"nodes": tree.n, "live_nodes": int(np.count_nonzero(tree.live[: tree.n])),
+                      "goal_nodes": int(np.count_nonzero(tree.goal[: tree.n]))})
+        stats.update({f"collision_{k}": v for k, v in checker.stats.items()})
+        # The counts the issue names, under plain names.
+        stats["edges_checked"] = checker.stats["edges"]
+        stats["collision_checks"] = checker.stats["pairs_exact"]
+        timings["tree"] = time.perf_counter() - t_start
+        return self._finish(tree, best_node, np.asarray(history), first_solution, stop_reason, stats, timings,
+                            t_start, cpu_start)
+
+    # --------------------------------------------------------------- iterate
+    def _iterate(self, rng, sampler: BeliefSampler, checker: CollisionChecker, tree: BeliefTree,
+                 best: float) -> int | None:
+        """One sampling attempt; returns the new node's index or None."""
+        o = self.options
+        st, tm = self._stats, self._timings
+        metric = self.metric
+        W = self.W_edge
+        bnb = o.branch_and_bound and math.isfinite(best)
+        t0 = time.perf_counter()
+
+        live_idx, X, PX = tree.live_arrays()
+        r = self._radius(live_idx.size)
+        xs, Ps = sampler.draw(rng)
+
+        # nearest in the (matrix-minimum) edge cost, then steer
+        diff = xs - X
+        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        w = dist if self.per_metre else np.ones_like(dist)
+        _, Ls_inv, _, _ = chol_factors(Ps)
+        D = dist + metric.weight * metric.nearest_info(PX, w, Ps, Ls_inv)
+        j = int(np.argmin(D))
+        t = min(1.0, r / D[j]) if D[j] > 0 else 1.0
+        x, P = self._steer(X[j], PX[j], xs, Ps, t)
+
+        # shrink until the ellipse is clear (exact distance -> number of halvings)
+        k = checker.shrink_exponent(x, P)
+        if k is None:
+            st["rejected_in_hazard"] += 1
+            tm["sample"] += time.perf_counter() - t0
+            return None
+        if k:
+            P = P * 0.5 ** k
+        try:
+            L, Linv, logdet, eig_min = chol_factors(P)
+        except np.linalg.LinAlgError:
+            eig_min = 0.0
+        if not eig_min >= _EIG_FLOOR_FACTOR * o.eig_range[0]:
+            st["rejected_too_small"] += 1
+            tm["sample"] += time.perf_counter() - t0
+            return None
+        t1 = time.perf_counter()
+        tm["sample"] += t1 - t0
+
+        # parent candidates: live nodes with a lossless edge of cost <= r (cost >= distance)
+        diff = x - X
+        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        near = np.flatnonzero(dist <= r)
+        wn = dist[near] if self.per_metre else np.ones(near.size)
+        lossless, info = metric.edges_to(PX[near], wn, P, L, Linv)
+        Dn = metric.cost(dist[near], info)
+        ok = lossless & (Dn <= r)
+        cand = near[ok]                         # positions in live_idx
+        if cand.size == 0:
+            st["rejected_no_candidate"] += 1
+            tm["candidates"] += time.perf_counter() - t1
+            return None
+        c_D, c_info, c_w = Dn[ok], info[ok], wn[ok]
+        via = tree.cost[live_idx[cand]] + c_D
+        order = np.argsort(via, kind="stable")
+        c_lb = float(via[order[0]])
+        h_q = self._h(x, logdet)
+        hopeless = bnb and c_lb + h_q > best * (1 + _REL_EPS)
+        st["parent_candidates"] += cand.size
+
+        # rewiring candidates (superset, with the optimistic cost c_lb of q)
+        if hopeless:
+            rw = np.zeros(0, dtype=np.int64)
+        else:
+            rv = near[live_idx[near] != 0]      # the root is never rewired
+            wr = dist[rv] if self.per_metre else np.ones(rv.size)
+            nodes = live_idx[rv]
+            lossless_r, info_r = metric.edges_from(P, wr, tree.P[nodes], tree.L[nodes], tree.Linv[nodes])
+            Dr = metric.cost(dist[rv], info_r)
+            new_lb = c_lb + Dr
+            cur = tree.cost[nodes]
+            okr = lossless_r & (Dr <= r) & (new_lb < cur * (1 - _REL_EPS))
+            if bnb:
+                okr &= new_lb + tree.h[nodes] <= best * (1 + _REL_EPS)
+            rw = rv[okr]
+            r_D, r_info, r_w = Dr[okr], info_r[okr], wr[okr]
+            st["rewire_candidates"] += rw.size
+        t2 = time.perf_counter()
+        tm["candidates"] += t2 - t1
+
+        # collision checks: first chunk of parents + all rewiring edges in one batch
+        parent_pos = -1
+        rw_clear = np.zeros(0, dtype=bool)
+        start, chunk = 0, _PARENT_CHUNK
+        while start < order.size and parent_pos < 0:
+            sel = order[start:start + chunk]
+            pn = live_idx[cand[sel]]
+            x0 = tree.x[pn]
+            P0 = tree.P[pn]
+            x1 = np.broadcast_to(x, x0.shape)
+            We = c_w[sel][:, None, None] * W
+            if start == 0 and rw.size:
+                rn = live_idx[rw]
+                x0 = np.concatenate([x0, np.broadcast_to(x, (rw.size, x.size))])
+                P0 = np.concatenate([P0, np.broadcast_to(P, (rw.size,) + P.shape)])
+                x1 = np.concatenate([x1, tree.x[rn]])
+                We = np.concatenate([We, r_w[:, None, None] * W])
+            else:
+                st["second_batches"] += start > 0
+            clear = checker.transitions_clear(np.ascontiguousarray(x0), np.ascontiguousarray(P0),
+                                              np.ascontiguousarray(x1), We)
+            if start == 0:
+                rw_clear = clear[sel.size:]
+            hit = np.flatnonzero(clear[: sel.size])
+            if hit.size:
+                parent_pos = int(sel[hit[0]])
+            start += sel.size
+            chunk *= 2
+        t3 = time.perf_counter()
+        tm["collision"] += t3 - t2
+        if parent_pos < 0:
+            st["rejected_all_colliding"] += 1
+            return None
+
+        parent = int(live_idx[cand[parent_pos]])
+        cost_q = float(via[parent_pos])
+        goal = checker.in_target(x, P)
+        q = tree.add(x, P, parent, cost_q, float(c_info[parent_pos]), h_q, goal, L=L)
+        if bnb and cost_q + h_q > best * (1 + _REL_EPS):
+            # cannot lead to a better path: dead on arrival (counted, as the
+            # authors' node that their next branch-and-bound step removes)
+            tree.set_live(q, False)
+            st["hopeless_nodes"] += 1
+            st["pruned"] += 1
+            tm["rewire"] += time.perf_counter() - t3
+            return q
+
+        # rewire, cheapest new cost first; re-check against current costs since
+        # an earlier rewire in this loop may already have lowered a subtree
+        if rw.size:
+            good = np.flatnonzero(rw_clear)
+            if good.size:
+                nodes = live_idx[rw[good]]
+                new_cost = cost_q + r_D[good]
+                infos = r_info[good]
+                anc = tree.ancestors(q)
+                for i in np.argsort(new_cost, kind="stable"):
+                    v = int(nodes[i])
+                    nc = float(new_cost[i])
+                    if v in anc or not tree.live[v] or not nc < tree.cost[v] * (1 - _REL_EPS):
+                        continue
+                    sub = tree.reparent(v, q, nc, float(infos[i]))
+                    st["rewires"] += 1
+                    if bnb:
+                        self._revive(tree, sub, best)
+        tm["rewire"] += time.perf_counter() - t3
+        return q
+
+    # ------------------------------------------------------ branch-and-bound
+    def _prune(self, tree: BeliefTree, best: float, best_node: int) -> None:
+        if not self.options.branch_and_bound:
+            return
+        t0 = time.perf_counter()
+        n = tree.n
+        live = tree.live[:n]
+        kill = live & (tree.cost[:n] + tree.h[:n] > best * (1 + _REL_EPS))
+        kill[0] = False
+        if best_node >= 0:
+            kill[best_node] = False
+        cnt = int(np.count_nonzero(kill))
+        if cnt:
+            tree.set_live(np.flatnonzero(kill), False)
+            self._stats["pruned"] += cnt
+        self._timings["prune"] += time.perf_counter() - t0
+
+    def _revive(self, tree: BeliefTree, sub: list[int], best: float) -> None:
+        """Nodes pruned earlier whose cost dropped with a rewired ancestor come back."""
+        idx = np.asarray(sub)
+        back = idx[~tree.live[idx] & (tree.cost[idx] + tree.h[idx] <= best * (1 + _REL_EPS))]
+        if back.size:
+            tree.set_live(back, True)
+            self._stats["revived"] += back.size
+
+    # ----------------------------------------------------------------- finish
+    def _finish(self, tree: BeliefTree, best_node: int, history: np.ndarray, first_solution: int | None,
+                stop_reason: str, stats: dict, timings: dict, t_start: float, cpu_start: float) -> PlanResult:
+        from ..verify import verify
+
+        o = self.options
+        sc = self.scenario
+        n = tree.n
+        view = TreeView(tree.x[:n].copy(), tree.P[:n].copy(), tree.parent[:n].copy(), tree.cost[:n].copy(),
+                        tree.live[:n].copy(), tree.goal[:n].copy())
+        common = dict(alpha=o.alpha, metric=o.metric, info_unit=o.info_unit, noise=o.noise,
+                      cost_history=history, first_solution_iteration=first_solution, tree=view, stats=stats,
+                      timings=timings, options=o.to_dict(), seed=o.seed, scenario=sc.name)
+        t0 = time.perf_counter()
+        path = None
+        report = None
+        message = ""
+        if best_node < 0:
+            message = (f"no path to the target found with {n} nodes in {stats['attempts']} attempts "
+                       f"({stop_reason})")
+        else:
+            # Verify the best path; should it ever fail, fall back to the next goal nodes.
+            goals = np.flatnonzero(tree.goal[:n] & tree.live[:n])
+            goals = goals[np.argsort(tree.cost[goals], kind="stable")]
+            if best_node not in goals:
+                goals = np.concatenate([[best_node], goals])
+            failures = []
+            for g in goals[:5]:
+                cand_path = self._belief_path(tree, int(g))
+                rep = verify(sc, cand_path)
+                if rep.safe:
+                    path, report, best_node = cand_path, rep, int(g)
+                    break
+                failures.append(rep.summary().splitlines()[0])
+                log.warning("planned path to node %d failed verification: %s", g, rep.summary())
+            if path is None:
+                message = "paths were found but none passed verification: " + "; ".join(failures)
+            else:
+                message = f"path found ({stop_reason})"
+                if failures:
+                    message += f"; {len(failures)} cheaper path(s) failed verification"
+        timings["verify"] = time.perf_counter() - t0
+        timings["total"] = time.perf_counter() - t_start
+        timings["cpu"] = time.process_time() - cpu_start
+        if path is None:
+            log.info("IG-RRT* failed: %s", message)
+            return PlanResult(success=False, message=message, path=None, cost=math.inf, travel=math.nan,
+                              information=math.nan, verification=None, **common)
+        nodes = tree.path_to(best_node)
+        travel = path.length
+        information = float(np.sum(tree.edge_info[nodes[1:]])) * self.metric.unit_factor
+        cost = float(tree.cost[best_node])
+        log.info("IG-RRT* done: cost %.6g with %d nodes in %.3g s", cost, n, timings["total"])
+        return PlanResult(success=True, message=message, path=path, cost=cost, travel=travel,
+                          information=information, verification=report.to_dict(), **common)
+
+    def _belief_path(self, tree: BeliefTree, goal_node: int) -> BeliefPath:
+        o = self.options
+        sc = self.scenario
+        nodes = tree.path_to(goal_node)
+        meta = {"planner": "IG-RRT*", "scenario": sc.name, "seed": o.seed, "options": o.to_dict(),
+                "cost": float(tree.cost[goal_node]), "metric": o.metric, "info_unit": o.info_unit,
+                "nodes": [int(v) for v in nodes]}
+        return BeliefPath.from_covariances(tree.x[nodes], tree.P[nodes], W=sc.W, W_rate=sc.W_rate,
+                                           noise=o.noise, meta=meta)
+
+
+def _safe_logdet(P: np.ndarray) -> float:
+    try:
+        return float(belief.logdet(P))
+    except np.linalg.LinAlgError:
+        return -math.inf
+
+
+def plan(scenario: Scenario, n_nodes: int = 500, seed: int | None = 0, alpha: float | None = None,
+         metric: str = "entropy", noise: str = "per_metre", time_limit: float | None = None,
+         branch_and_bound: bool = True, **options: Any) -> PlanResult:
+    """Plan a minimum-sensing belief path with IG-RRT*.
+
+    Parameters
+    ----------
+    scenario : the planning problem (:func:`belief_nlp.load_scenario`).
+    n_nodes : nodes in the final tree (root included).
+    seed : seed of the random generator; the same seed gives the same result.
+    alpha : information weight; None uses ``scenario.alpha``.
+    metric : ``"entropy"`` (default, nats), ``"wasserstein"`` or ``"hellinger"``.
+    noise : ``"per_metre"`` (P_hat = P + W_rate ||dx||, the authors') or
+        ``"per_step"`` (P_hat = P + W per edge, whatever its length).
+    time_limit : seconds, or None.
+    branch_and_bound : prune nodes that cannot improve on the best path.
+    **options : the other fields of :class:`~.options.PlannerOptions`
+        (``eig_range``, ``max_radius``, ``gamma``, ``goal_bias``,
+        ``convergence_tol``, ``info_unit``, ``progress``, ...).
+
+    Returns
+    -------
+    PlanResult
+        ``success`` is True only for a path that passed
+        :func:`belief_nlp.verify`; otherwise ``message`` says why.
+    """
+    planner = IGRRTStar(scenario, n_nodes=n_nodes, seed=seed, alpha=alpha, metric=metric, noise=noise,
+                        time_limit=time_limit, branch_and_bound=branch_and_bound, **options)
+    return planner.plan()
