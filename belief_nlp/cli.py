@@ -44,6 +44,12 @@ EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED = 0, 2, 3
 FAILED_STATUSES = ("solver_failed", "ipopt_failed")
 
 PROG = "belief-nlp"
+
+#: Rewiring-radius cap of the demo's planner (cost units). The scenario's 0.3
+#: suits per-metre noise; with per-step noise (the smoother's model) an edge
+#: out of a well-localised node costs about alpha/2 log det((P + W) P^-1)
+#: whatever its length, and at alpha = 1 no neighbour lies within 0.3.
+DEMO_MAX_RADIUS = 1.5
 log = logging.getLogger("belief_nlp.cli")
 
 
@@ -148,14 +154,23 @@ def _scenario_arg(p: argparse.ArgumentParser, default: str | None = None) -> Non
                    help="information weight alpha (cost = control + alpha * information); default: the scenario's")
 
 
-def _planner_args(p: argparse.ArgumentParser, nodes: int = 500, title: str = "planner (IG-RRT*)") -> None:
+def _planner_args(p: argparse.ArgumentParser, nodes: int = 500, title: str = "planner (IG-RRT*)",
+                  max_radius: float | None = None) -> None:
     g = p.add_argument_group(title)
     g.add_argument("--nodes", type=_positive_int, default=nodes, help="nodes in the final tree (the paper's N)")
     g.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (same seed, same plan)")
     g.add_argument("--metric", choices=("entropy", "wasserstein", "hellinger"), default="entropy",
                    help="information term of the planner's edge cost")
-    g.add_argument("--noise", choices=("per_metre", "per_step"), default="per_metre",
-                   help="planner's process noise: W_rate per metre travelled, or W per edge")
+    g.add_argument("--noise", choices=("per_step", "per_metre"), default="per_step",
+                   help="planner's process noise: per_step adds W on every edge, the smoother's model (paper "
+                        "eq. 2), so the plan can be smoothed as it is; per_metre adds W_rate per metre "
+                        "travelled, as the authors' IG-RRT* (its paths may pass too close to obstacles "
+                        "for the per-step model)")
+    g.add_argument("--max-radius", type=_positive_float, default=max_radius, metavar="R",
+                   help="cap of the rewiring radius, in cost units" + (
+                       " (default: the scenario's [planner] value)" if max_radius is None else "")
+                   + ". With per_step noise every edge pays for a full W, so a larger cap than the "
+                     "per-metre one lets IG-RRT* connect at large alpha")
     g.add_argument("--no-branch-and-bound", dest="branch_and_bound", action="store_false",
                    help="do not prune nodes that cannot beat the best path")
 
@@ -274,7 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     dp.add_argument("--scenario", default="paper-multi", help="built-in scenario name or a .toml/.json file")
     dp.add_argument("--alphas", type=_nonneg_float, nargs="+", default=[0.1, 1.0], metavar="ALPHA",
                     help="information weights, one column of figures each")
-    _planner_args(dp)
+    _planner_args(dp, max_radius=DEMO_MAX_RADIUS)
     _smoother_args(dp, max_iter=15, method=False)
     dp.add_argument("--converged", action="store_true",
                     help="run CCP until converged (up to 200 iterations) instead of the paper's 15")
@@ -417,8 +432,9 @@ def _plan(run: _Run, sc, *, label: str = "", stem: str = "plan", figures: bool =
     log.info("%splanning on %s with IG-RRT*: %d nodes, seed %d, alpha %g, %s noise", label, sc.name or "scenario",
              a.nodes, a.seed, sc.alpha, a.noise)
     t0 = time.perf_counter()
+    extra = {} if a.max_radius is None else {"max_radius": a.max_radius}
     res = plan(sc, n_nodes=a.nodes, seed=a.seed, metric=a.metric, noise=a.noise, time_limit=a.time_limit,
-               branch_and_bound=a.branch_and_bound, progress=not run.quiet)
+               branch_and_bound=a.branch_and_bound, progress=not run.quiet, **extra)
     elapsed = time.perf_counter() - t0
     run.wrote(res.save(run.out / f"{stem}.{a.format}"))
     if res.success:
@@ -454,7 +470,8 @@ def _plan_figures(run: _Run, sc, res, stem: str) -> None:
 
 
 def _plan_failed(res) -> int:
-    print(f"{PROG}: planning failed: {_one_line(res.message)}", file=sys.stderr)
+    print(f"{PROG}: planning failed: {_one_line(res.message)} (try more --nodes, another --seed or a larger "
+          f"--max-radius)", file=sys.stderr)
     return EXIT_FAILED
 
 
@@ -800,6 +817,7 @@ def _cmd_demo(run: _Run) -> int:
 
     summary = {
         "scenario": base.name, "nodes": a.nodes, "seed": a.seed, "noise": a.noise, "metric": a.metric,
+        "max_radius": a.max_radius,
         "max_iter": a.max_iter, "tol": a.tol, "horizon": a.horizon, "quick": a.quick,
         "W": np.asarray(base.W).tolist(), "total_time_s": time.perf_counter() - t_demo,
         "runs": [_run_summary(e) for e in runs], "failures": failures,
