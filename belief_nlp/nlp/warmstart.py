@@ -158,8 +158,11 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None) -> Wa
                 j = int(bad[0])
                 raise InfeasibleStartError(
                     f"transition {k} (from {x[k - 1].round(6).tolist()} to {x[k].round(6).tolist()}) "
-                    f"cannot be made clear of {scenario.hazards[j].name}: the means themselves are too close "
-                    f"(or the start covariance is too large)", transition=k, obstacle=scenario.hazards[j].name)
+                    f"cannot be made clear of {scenario.hazards[j].name} under the smoother's per-step noise W: "
+                    f"the means pass too close (no sensing before the step can shrink P + W enough)"
+                    + (". The path was planned with per-metre noise; plan with noise='per_step' to get "
+                       "paths feasible for the smoother's model" if path.noise == "per_metre" else ""),
+                    transition=k, obstacle=scenario.hazards[j].name)
             P[k - 1] = 0.5 * P[k - 1]
             halvings += 1
         P_prior = P[k - 1] + W
