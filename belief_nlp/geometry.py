@@ -16,7 +16,7 @@ exactly (a 1-D convex minimisation to ~1e-10, never sampling s).
 
 Two implementations share the public functions:
 
-* the generic one (any dimension, and whenever certificates are wanted)
+* the generic one (any dimension, and 2-D on request via ``_generic``)
   enumerates the faces of each polytope once (:class:`PolytopeSet`): the
   minimiser of Lemma 1 lies in the relative interior of one face; for the
   face with active rows S the candidate value is c_S^T G_SS^-1 c_S, feasible
@@ -25,9 +25,11 @@ Two implementations share the public functions:
 * the planar one (d = 2, by far the common case for the planner) uses that
   the nearest point of a polygon lies on an edge or is a vertex, and splits
   min_s dist2(s) into per-feature minimisations (see :func:`_planar_transitions`):
-  edges in closed form, vertices by a short bracketed iteration. It is plain
+  edges in closed form, vertex curves from a Newton guess on their pole form
+  (:func:`_vertex_newton`) checked by a convexity lower bound. It is plain
   vectorised arithmetic with no fancy indexing, which is what makes it fast
-  for the small batches a planner issues.
+  for the small batches a planner issues; it also returns minimisers and
+  Theorem-1 certificates.
 
 Margins are "clearances": dist2 - chi2 (>= 0 means clear). Containment of an
 ellipse in a polytope uses the support function, b - a^T x - sqrt(chi2 a^T P a)
@@ -971,7 +973,7 @@ class TransitionMinimum:
     dist2: np.ndarray    # (n, m) min over s in [0, 1] of the squared distance
     s: np.ndarray        # (n, m) minimiser
     lam: np.ndarray      # (n, m, F) common certificate (Theorem 1), padded faces
-    iterations: int
+    iterations: int      # bracketing rounds (planar: 0 when closed forms and Newton guesses settle all)
 
 
 @_quiet
@@ -985,7 +987,7 @@ def transition_minimiser(x_prev, P_prev, x_next, W, polytopes, tol: float = 1e-1
     bound LB; a pair is converged when best - LB <= tol * (1 + best).
     2-D polygons use the planar path (closed-form edges, see
     :func:`_planar_transitions`), other dimensions a bracketed iteration on
-    dist2(s) itself (:class:`_Bracket`).
+    dist2(s) itself (:func:`_minimise_brackets`).
 
     With ``threshold`` set, a pair also stops as soon as it is decided
     against it (some g(s) < threshold, or LB >= threshold); ``dist2`` is
