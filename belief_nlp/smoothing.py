@@ -29,7 +29,8 @@ def _validate(max_iter: Any, tol: Any, alpha: Any, time_limit: Any) -> None:
 def smooth(scenario: Scenario | str, path: BeliefPath | WarmStart, method: str = "ccp", K: int | None = None,
            max_iter: int = 50, tol: float = 1e-4, solver: str = "CLARABEL", alpha: float | None = None, *,
            time_limit: float | None = None, solver_options: dict | None = None,
-           keep_iterates: bool = False, progress: bool = False, **method_options: Any) -> SmoothResult:
+           keep_iterates: bool = False, progress: bool = False, sensing: str = "minimal",
+           **method_options: Any) -> SmoothResult:
     """Smooth a feasible belief path toward a local optimum of the paper's problem.
 
     Parameters
@@ -51,6 +52,9 @@ def smooth(scenario: Scenario | str, path: BeliefPath | WarmStart, method: str =
     solver_options : passed to the solver (Clarabel settings, CVXPY solve
         keywords, or IPOPT options for method="ipopt").
     keep_iterates : also return every accepted iterate's path (for animations).
+    sensing : how the warm start sets covariances: "minimal" (least sensing
+        that keeps the path's means feasible; default) or "path" (keep the
+        path's own sensing, add where needed). See :func:`warm_start`.
     progress : show a progress bar.
 
     Returns
@@ -63,7 +67,7 @@ def smooth(scenario: Scenario | str, path: BeliefPath | WarmStart, method: str =
     if method not in METHODS:
         raise ValidationError("method", f"must be one of {METHODS}, got {method!r}")
     _validate(max_iter, tol, alpha, time_limit)
-    start = path if isinstance(path, WarmStart) else warm_start(scenario, path, K=K)
+    start = path if isinstance(path, WarmStart) else warm_start(scenario, path, K=K, sensing=sensing)
     if isinstance(path, WarmStart) and K is not None and K != path.K:
         raise ValidationError("K", f"the given warm start has K = {path.K}, not {K}")
     if method == "ccp":

@@ -11,13 +11,20 @@ SDP feasibility problem):
    of edges is refused (dropping vertices could cut corners through
    obstacles).
 2. Re-derive the covariances for the smoother's noise model (W per step,
-   paper eq. 2): at each node the posterior is the largest covariance below
-   both the new prior P_{k-1} + W and the path's own posterior there (the
-   authors' "matrix minimum"), i.e. sensing is only ever added. Where a
-   transition is not clear (the per-step model can be noisier than the
-   planner's per-metre model), the posterior at its start is halved -- more
-   sensing at k-1 -- until it is; the final posterior is halved until its
-   ellipse lies in the target.
+   paper eq. 2). With ``sensing="minimal"`` (default) no sensing is taken
+   over from the path: each posterior starts as its prior P_{k-1} + W (no
+   measurement) and is only shrunk where needed. With ``sensing="path"`` the
+   posterior at each node is the largest covariance below both the new prior
+   and the path's own posterior there (the authors' "matrix minimum"), i.e.
+   the path's sensing is kept and more is added where needed. In both cases,
+   where a transition is not clear (the per-step model can be noisier than
+   the planner's per-metre model), the posterior at its start is halved --
+   more sensing at k-1 -- until it is, and the final posterior is halved
+   until its ellipse lies in the target. "minimal" is the default because
+   planner paths often carry near-exact posteriors (P ~ 1e-9 I, i.e.
+   S ~ 1e9 m^-2) that add nothing to feasibility and made the first conic
+   subproblem fail on paper-multi (alpha = 1, K = 20: InsufficientProgress
+   twice with "path", converged with "minimal").
 3. Certificates lam_{k,j} of Theorem 1 from the exact transition geometry
    (the optimal common lambda, which maximises the slack).
 4. The result is checked by :func:`belief_nlp.verify` and by the model.
@@ -124,7 +131,8 @@ def _on_segment(p, a, b) -> bool:
     return -1e-12 <= t <= 1 + 1e-12 and np.allclose(a + t * ab, p, atol=1e-12)
 
 
-def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None) -> WarmStart:
+def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
+               sensing: str = "minimal") -> WarmStart:
     """A feasible initial point of the smoother built from ``path``.
 
     ``path`` may come from the planner (per-metre noise), a file, or a user's
@@ -136,6 +144,8 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None) -> Wa
         raise ValidationError("path", f"must be a BeliefPath, got {type(path).__name__}")
     if path.dim != scenario.dim:
         raise ValidationError("path", f"dimension {path.dim} does not match the scenario's {scenario.dim}")
+    if sensing not in ("minimal", "path"):
+        raise ValidationError("sensing", f"must be 'minimal' or 'path', got {sensing!r}")
     if not np.allclose(path.x[0], scenario.x0, atol=1e-9):
         raise ValidationError("path.x", "the path must start at the scenario's start mean x0")
     x = resample_means(path.x, K)
@@ -166,7 +176,7 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None) -> Wa
             P[k - 1] = 0.5 * P[k - 1]
             halvings += 1
         P_prior = P[k - 1] + W
-        P[k] = belief.matrix_minimum(P_prior, target_P[k]) if k < K_ else belief.matrix_minimum(P_prior, target_P[k])
+        P[k] = belief.matrix_minimum(P_prior, target_P[k]) if sensing == "path" else P_prior
     # final posterior inside the target
     T = scenario.target
     if not T.contains(x[-1]):
