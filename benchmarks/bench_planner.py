@@ -10,12 +10,14 @@ in their unit, metres + (alpha/2) (log2 det P_hat - log2 det P) per edge, i.e.
 length + alpha * (entropy reduction in bits) = length + alpha * nats / ln 2.
 
 This script runs our planner (exact continuous-time edge checks) for N = 500,
-1000, 2000 and seeds 0..9, for two objectives:
+1000, 2000 and seeds 0..9, in these configurations:
 
 * ``bits``: the authors' objective (``info_unit="bits"``), so the planner
   minimises exactly the cost they report; this is the comparison.
 * ``nats``: our default objective, length + alpha * nats (alpha = 0.1 nats is a
   weight 1/ln 2 = 1.44 times lighter on information than theirs).
+* ``bits-noBB`` (with ``--ablation``, the default of the full study): the
+  authors' objective with branch-and-bound off, to show what pruning does.
 
 Every run's best path is reported in both units: ours = length + 0.1 * nats,
 theirs = length + 0.1 * nats / ln 2.
@@ -25,7 +27,7 @@ benchmarks/results/planner_quad.png (median best cost against nodes), prints
 a table. Time is CPU time of the planning process (``time.process_time``) and
 wall time; the wall time includes whatever else the machine is running.
 
-    python benchmarks/bench_planner.py            # full study (a few minutes)
+    python benchmarks/bench_planner.py            # full study (about five minutes)
     python benchmarks/bench_planner.py --quick    # 3 seeds, N = 500 and 1000
 """
 
@@ -76,8 +78,12 @@ def machine_info() -> dict:
     return info
 
 
+CONFIGS = {"bits": {"info_unit": "bits"}, "nats": {"info_unit": "nats"},
+           "bits-noBB": {"info_unit": "bits", "branch_and_bound": False}}
+
+
 def run_one(sc, n: int, seed: int, objective: str) -> dict:
-    res = plan(sc, n_nodes=n, seed=seed, info_unit=objective)
+    res = plan(sc, n_nodes=n, seed=seed, **CONFIGS[objective])
     rec = {"objective": objective, "n_nodes": n, "seed": seed, "success": res.success,
            "cpu_s": res.timings["cpu"], "wall_s": res.timings["total"],
            "cpu_per_node_ms": 1e3 * res.timings["cpu"] / n, "wall_per_node_ms": 1e3 * res.timings["total"] / n,
@@ -110,7 +116,7 @@ def median(vals):
 
 def summarise(records: list[dict]) -> list[dict]:
     rows = []
-    for obj in sorted({r["objective"] for r in records}):
+    for obj in [c for c in CONFIGS if any(r["objective"] == c for r in records)]:
         for n in sorted({r["n_nodes"] for r in records}):
             rs = [r for r in records if r["objective"] == obj and r["n_nodes"] == n]
             if not rs:
@@ -133,13 +139,13 @@ def summarise(records: list[dict]) -> list[dict]:
 
 
 def print_table(rows: list[dict]) -> None:
-    head = (f"{'objective':9s} {'N':>5s} {'solved':>6s} {'cost ours':>9s} {'cost theirs':>11s} {'authors':>7s} "
+    head = (f"{'objective':10s} {'N':>5s} {'solved':>6s} {'cost ours':>9s} {'cost theirs':>11s} {'authors':>7s} "
             f"{'CPU s':>6s} {'max':>5s} {'wall s':>6s} {'max':>5s} {'ms/node':>7s} {'1st sol.':>8s}")
     print(head)
     print("-" * len(head))
     for r in rows:
         a = r["authors_cost"]
-        print(f"{r['objective']:9s} {r['n_nodes']:5d} {r['solved']:3d}/{r['runs']:<2d} {r['median_cost_ours']:9.3f} "
+        print(f"{r['objective']:10s} {r['n_nodes']:5d} {r['solved']:3d}/{r['runs']:<2d} {r['median_cost_ours']:9.3f} "
               f"{r['median_cost_theirs']:11.3f} {a if a is not None else float('nan'):7.3f} "
               f"{r['median_cpu_s']:6.2f} {r['max_cpu_s']:5.2f} {r['median_wall_s']:6.2f} {r['max_wall_s']:5.2f} "
               f"{r['median_cpu_per_node_ms']:7.2f} {r['median_first_solution']:8.0f}")
@@ -155,8 +161,9 @@ def plot(records: list[dict], path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     n_max = max(r["n_nodes"] for r in records)
-    styles = {"bits": ("C0", "authors' objective (bits), our planner"),
-              "nats": ("C1", "our objective (nats), our planner")}
+    styles = {"bits": ("C0", "authors' objective (bits)"),
+              "nats": ("C1", "our objective (nats)"),
+              "bits-noBB": ("C2", "authors' objective, no branch-and-bound")}
     for obj, (color, label) in styles.items():
         runs = [r for r in records if r["objective"] == obj and r["n_nodes"] == n_max]
         if not runs:
@@ -172,7 +179,7 @@ def plot(records: list[dict], path: Path) -> None:
     ax.plot(ns, [AUTHORS[n][1] for n in ns], "ks--", label="authors' IG-RRT* (MATLAB), their unit")
     ax.set_xlabel("nodes")
     ax.set_ylabel("best cost (planner's own unit)")
-    ax.set_title("IG-RRT* on quad (alpha = 0.1)")
+    ax.set_title("IG-RRT* on quad (alpha = 0.1): our planner vs the authors'")
     ax.set_ylim(1.2, 3.5)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
@@ -185,16 +192,18 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="3 seeds, N = 500 and 1000")
     ap.add_argument("--seeds", type=int, default=None, help="number of seeds (default 10, quick 3)")
-    ap.add_argument("--objectives", nargs="+", default=["bits", "nats"], choices=["bits", "nats"])
+    ap.add_argument("--objectives", nargs="+", default=None, choices=list(CONFIGS),
+                    help="configurations to run (default: bits nats, plus bits-noBB in the full study)")
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args(argv)
     seeds = range(args.seeds if args.seeds is not None else (3 if args.quick else 10))
     sizes = [500, 1000] if args.quick else [500, 1000, 2000]
+    objectives = args.objectives or (["bits", "nats"] if args.quick else list(CONFIGS))
     sc = bn.load_scenario("quad")
     info = machine_info()
     records = []
     t0 = time.perf_counter()
-    for obj in args.objectives:
+    for obj in objectives:
         for n in sizes:
             for s in seeds:
                 rec = run_one(sc, n, s, obj)

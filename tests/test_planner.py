@@ -130,9 +130,20 @@ def test_branch_and_bound(quad):
     assert t.live[on.path.meta["nodes"]].all()
     assert on.stats["pruned"] > 0 and off.stats["pruned"] == 0
     assert np.all(off.tree.live)
-    # (It does change later samples, so the two final costs differ in general; see
-    # the planner benchmark for the distribution.)
+    # Pruned nodes leave the nearest/parent/rewiring searches, so later samples
+    # differ and the final costs differ in general (pruning focuses the search;
+    # the planner benchmark has the distribution over seeds). Both runs end at
+    # a comparable cost.
     assert on.cost <= 1.5 * off.cost and off.cost <= 1.5 * on.cost
+    # The bound is admissible and consistent: no kept node is hopeless, and the
+    # ancestors of kept nodes are kept.
+    n = len(t)
+    live = np.flatnonzero(t.live)
+    tree = IGRRTStar(quad)  # for the bound h
+    h = np.array([tree._h(t.x[i], np.linalg.slogdet(t.P[i])[1]) for i in live])
+    assert np.all(t.cost[live] + h <= on.cost * (1 + 1e-9))
+    assert np.all(t.live[t.parent[live[1:]]])
+    assert n == 300
 
 
 def test_unreachable_target_fails_cleanly():
@@ -255,3 +266,40 @@ def test_geodesic_steering_is_lossless(quad):
         P_hat = Pn + np.linalg.norm(x - xn) * quad.W_rate
         assert bn.belief.is_lossless(P_hat, P, rtol=-1e-7)    # strictly below the prior
         assert np.allclose(x, xn + t * (xs - xn))
+
+
+@pytest.mark.parametrize("metric", ["entropy", "wasserstein", "hellinger"])
+@pytest.mark.parametrize("d", [2, 3])
+def test_edge_metrics_match_belief_module(metric, d):
+    """The batched closed-form kernels agree with belief.py's definitions."""
+    from belief_nlp import belief
+    from belief_nlp.planner.kernels import chol_factors
+    from belief_nlp.planner.metrics import EdgeMetric
+
+    rng = np.random.default_rng(d)
+    n = 40
+    A = rng.normal(size=(n, d, d))
+    P = (A @ np.swapaxes(A, 1, 2) + 0.2 * np.eye(d)) * 1e-4
+    w = rng.uniform(0.05, 0.5, n)
+    W = 1e-3 * np.eye(d)
+    B = rng.normal(size=(d, d))
+    C = (B @ B.T + 0.2 * np.eye(d)) * 3e-5
+    m = EdgeMetric(metric, alpha=0.1, info_unit="nats", W_edge=W)
+    L, Linv, _, _ = chol_factors(C)
+    P_hat = P + w[:, None, None] * W
+    Cs = np.broadcast_to(C, P.shape)
+    lossless, info = m.edges_to(P, w, C, L, Linv)
+    assert np.array_equal(lossless, belief.is_lossless(P_hat, Cs, rtol=-1e-7))
+    ref = {"entropy": lambda a, b: belief.information_cost(a, b),
+           "wasserstein": lambda a, b: belief.wasserstein_distance(b, a),
+           "hellinger": lambda a, b: belief.hellinger_distance(b, a)}[metric]
+    assert np.allclose(info, ref(P_hat, Cs), rtol=1e-6, atol=1e-9)
+    mm = belief.matrix_minimum(P_hat, Cs)
+    assert np.allclose(m.nearest_info(P, w, C, Linv), ref(P_hat, mm), rtol=1e-6, atol=1e-9)
+    # from one parent Q to every node (rewiring direction)
+    Q = C * 5
+    Ls = np.linalg.cholesky(P)
+    lossless_r, info_r = m.edges_from(Q, w, P, Ls, np.linalg.inv(Ls))
+    Q_hat = Q + w[:, None, None] * W
+    assert np.array_equal(lossless_r, belief.is_lossless(Q_hat, P, rtol=-1e-7))
+    assert np.allclose(info_r, ref(Q_hat, P), rtol=1e-6, atol=1e-9)

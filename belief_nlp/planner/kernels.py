@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-__all__ = ["congruence_eigvals", "chol_lower", "chol_factors", "inv_lower", "sym_eigvals", "sym_sqrt"]
+__all__ = ["congruence_eigvals", "chol_lower", "chol_factors", "eigh_single", "inv_lower"]
 
 
 def _cong2(s11, s12, s22, T):
@@ -51,13 +51,6 @@ def _eig2(m11, m12, m22):
     with np.errstate(divide="ignore", invalid="ignore"):
         small = np.where(big > 0, det / big, half_tr - disc)
     return np.stack([small, big], axis=-1)
-
-
-def sym_eigvals(M: np.ndarray) -> np.ndarray:
-    """Ascending eigenvalues of a stack of symmetric matrices (..., d, d) -> (..., d)."""
-    if M.shape[-1] == 2:
-        return _eig2(M[..., 0, 0], 0.5 * (M[..., 0, 1] + M[..., 1, 0]), M[..., 1, 1])
-    return np.linalg.eigvalsh(0.5 * (M + np.swapaxes(M, -1, -2)))
 
 
 def congruence_eigvals(P: np.ndarray, w: np.ndarray | float, W: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -93,12 +86,6 @@ def inv_lower(L: np.ndarray) -> np.ndarray:
     return np.linalg.inv(L)
 
 
-def sym_sqrt(P: np.ndarray) -> np.ndarray:
-    """Principal square roots of symmetric PSD matrices (one or a stack)."""
-    w, V = np.linalg.eigh(0.5 * (P + np.swapaxes(P, -1, -2)))
-    return (V * np.sqrt(np.maximum(w, 0.0))[..., None, :]) @ np.swapaxes(V, -1, -2)
-
-
 def chol_factors(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
     """(L, L^-1, log det P, smallest eigenvalue) of one SPD matrix.
 
@@ -124,3 +111,20 @@ def chol_factors(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
         return L, Linv, math.log(det), det / big
     L = chol_lower(P)
     return L, inv_lower(L), 2.0 * float(np.sum(np.log(np.diagonal(L)))), float(np.linalg.eigvalsh(P)[0])
+
+
+def eigh_single(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues and orthonormal eigenvectors (columns) of one symmetric matrix.
+
+    2-D in closed form (Jacobi rotation angle theta = atan2(2b, a - c) / 2,
+    the smaller eigenvalue as det / larger to avoid cancellation); otherwise
+    ``np.linalg.eigh``.
+    """
+    if M.shape == (2, 2):
+        a, b, c = float(M[0, 0]), 0.5 * float(M[0, 1] + M[1, 0]), float(M[1, 1])
+        th = 0.5 * math.atan2(2.0 * b, a - c)
+        co, si = math.cos(th), math.sin(th)
+        big = a * co * co + 2.0 * b * co * si + c * si * si      # along (co, si)
+        small = (a * c - b * b) / big if big > 0 else a * si * si - 2.0 * b * co * si + c * co * co
+        return np.array([big, small]), np.array([[co, -si], [si, co]])
+    return np.linalg.eigh(0.5 * (M + M.T))

@@ -17,9 +17,17 @@ Nodes are beliefs (x, P). One iteration (one new node):
 6. **Rewire**: live neighbours v with a lossless edge q -> v of cost <= r
    that would lower v's cost; the cost change propagates to v's subtree.
 7. **Goal**: the node is a goal when its ellipse lies inside the target.
-8. **Branch-and-bound**: drop nodes whose cost-to-come plus an admissible,
-   consistent cost-to-go bound h exceeds the best cost (so a kept node's
-   ancestors are kept, and the best path is never touched).
+8. **Branch-and-bound** (as the authors, after Karaman et al.'s anytime
+   RRT*): drop nodes whose cost-to-come plus an admissible, consistent
+   cost-to-go bound h exceeds the best cost. Consistency means a kept node's
+   ancestors are kept, and the best path is never touched; a dropped node
+   comes back if a rewired ancestor makes it promising again. Dropped nodes
+   leave the nearest, parent and rewiring searches, so later samples are
+   steered toward the part of the tree that can still improve the best path.
+   That is a change of the search, not only a saving: before the first
+   solution the runs with and without it are identical, after it they
+   differ (on ``quad`` pruning lowers the median best cost at N = 2000 from
+   2.08 to 1.68 in the authors' unit; see benchmarks/bench_planner.py).
 
 Edge collision decisions are exact in continuous time (paper Theorem 1; see
 :mod:`.collision`), never sampled, and the edges of one iteration (the
@@ -36,6 +44,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 from typing import Any
 
@@ -44,9 +53,9 @@ import numpy as np
 from .. import belief
 from ..errors import ValidationError
 from ..path import BeliefPath
-from ..scenario import Scenario
+from ..scenario import Scenario, load_scenario
 from .collision import CollisionChecker
-from .kernels import chol_factors
+from .kernels import chol_factors, eigh_single
 from .metrics import EdgeMetric
 from .options import PlannerOptions, default_gamma, resolve_options
 from .result import PlanResult, TreeView
@@ -73,7 +82,7 @@ class IGRRTStar:
 
     Parameters
     ----------
-    scenario : :class:`~belief_nlp.Scenario`
+    scenario : :class:`~belief_nlp.Scenario` (or a built-in name / scenario file)
     **options : any field of :class:`~.options.PlannerOptions`; defaults come
         from the scenario's ``[planner]`` table, then the built-in defaults.
         Invalid values raise :class:`~belief_nlp.errors.ValidationError`.
@@ -82,7 +91,9 @@ class IGRRTStar:
     ``tree_`` (a :class:`~.tree.BeliefTree`).
     """
 
-    def __init__(self, scenario: Scenario, **options: Any):
+    def __init__(self, scenario: Scenario | str, **options: Any):
+        if isinstance(scenario, (str, os.PathLike)):
+            scenario = load_scenario(scenario)
         if not isinstance(scenario, Scenario):
             raise ValidationError("scenario", f"must be a Scenario, got {type(scenario).__name__}")
         self.scenario = scenario
@@ -138,8 +149,7 @@ class IGRRTStar:
             L, Linv, _, _ = chol_factors(0.5 * (P_hat + P_hat.T))
         except np.linalg.LinAlgError:  # singular prior (P0 = 0 and no motion): keep the sample's P
             return x, Ps
-        M = Linv @ Ps @ Linv.T
-        lam, U = np.linalg.eigh(0.5 * (M + M.T))
+        lam, U = eigh_single(Linv @ Ps @ Linv.T)
         lam = np.minimum(np.minimum(np.maximum(lam, 1e-300), 1.0) ** t, 1.0 - 1e-6)
         LU = L @ U
         P = (LU * lam) @ LU.T
@@ -497,7 +507,8 @@ def plan(scenario: Scenario, n_nodes: int = 500, seed: int | None = 0, alpha: fl
 
     Parameters
     ----------
-    scenario : the planning problem (:func:`belief_nlp.load_scenario`).
+    scenario : the planning problem, or a built-in name / scenario file for
+        :func:`belief_nlp.load_scenario`.
     n_nodes : nodes in the final tree (root included).
     seed : seed of the random generator; the same seed gives the same result.
     alpha : information weight; None uses ``scenario.alpha``.

@@ -32,21 +32,29 @@ class BeliefSampler:
         self.lo, self.hi = eig_range
         self.log_ratio = math.log(eig_ratio)
         self.goal_bias = goal_bias
+        self._boxes = {name: (poly, *self._box(poly)) for name, poly in (("domain", self.domain),
+                                                                        ("target", self.target))}
 
     @staticmethod
-    def _uniform_in(poly, rng: np.random.Generator) -> np.ndarray:
-        lo = poly.vertices.min(axis=0)
-        hi = poly.vertices.max(axis=0)
+    def _box(poly) -> tuple[np.ndarray, np.ndarray, bool]:
+        """Bounding box of a polytope and whether the polytope is that box."""
+        lo, hi = poly.vertices.min(axis=0), poly.vertices.max(axis=0)
+        corners = np.array(np.meshgrid(*zip(lo, hi), indexing="ij")).reshape(lo.size, -1).T
+        is_box = bool(np.all(corners @ poly.A.T <= poly.b + 1e-12 * (1 + np.abs(poly.b))))
+        return lo, hi, is_box
+
+    def _uniform_in(self, which: str, rng: np.random.Generator) -> np.ndarray:
+        poly, lo, hi, is_box = self._boxes[which]
         for _ in range(10000):
             x = lo + (hi - lo) * rng.random(lo.size)
-            if np.all(poly.A @ x <= poly.b):
+            if is_box or np.all(poly.A @ x <= poly.b):
                 return x
         raise RuntimeError("could not sample inside a polytope (degenerate?)")  # pragma: no cover
 
     def draw(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """One raw sample (x, P)."""
         goal = self.goal_bias > 0 and rng.random() < self.goal_bias
-        x = self._uniform_in(self.target if goal else self.domain, rng)
+        x = self._uniform_in("target" if goal else "domain", rng)
         d = self.dim
         lam = np.empty(d)
         lam[0] = math.exp(self.log_lo + (self.log_hi - self.log_lo) * rng.random())
