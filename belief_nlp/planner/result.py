@@ -84,10 +84,16 @@ class PlanResult:
     first_solution_iteration : number of nodes in the tree when the first
         solution appeared (the authors' iteration ii), or None.
     tree : :class:`TreeView` of the final tree.
-    stats : counts: nodes, attempts, rejected samples by reason, candidate
-        edges, edges checked (certified in closed form / by the exact
-        Theorem-1 minimisation), exact calls, rewires, pruned nodes.
-    timings : seconds per phase and in total.
+    stats : counts. ``nodes`` (in the tree, root included), ``attempts``
+        (samples drawn), ``rejected_*`` (samples that got no node, by
+        reason), ``parent_candidates`` / ``rewire_candidates``, ``rewires``,
+        ``pruned`` / ``revived`` (branch-and-bound), ``goal_nodes``;
+        ``edges_checked``: candidate edges given an exact collision decision;
+        ``collision_checks``: (edge, obstacle) pairs that needed the iterative
+        Theorem-1 minimiser (the rest were decided in closed form); the
+        ``collision_*`` entries break the decisions down by layer.
+    timings : seconds: ``sample``, ``candidates``, ``collision``, ``rewire``,
+        ``prune``, ``verify``, ``total`` (wall) and ``cpu`` (process time).
     verification : ``VerificationReport.to_dict()`` of the returned path.
     options : the resolved planner options; seed : the seed;
     scenario : name of the scenario.
