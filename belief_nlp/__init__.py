@@ -16,14 +16,28 @@ from .verify import VerificationReport, verify
 from .nlp.result import IterationRecord, SmoothResult
 from .nlp.warmstart import WarmStart, warm_start
 from .smoothing import smooth
+from .planner import IGRRTStar, PlanResult, plan
+
+# Heavier or optional modules load on first use (plotting pulls in pyplot).
+_LAZY = {"plotting", "compare", "export"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module 'belief_nlp' has no attribute {name!r}")
 
 __version__ = "0.1.0"
 
 __all__ = [
     "BeliefNLPError",
     "BeliefPath",
+    "IGRRTStar",
     "InfeasibleStartError",
     "IterationRecord",
+    "PlanResult",
     "Polytope",
     "Scenario",
     "ScenarioFileError",
@@ -35,6 +49,7 @@ __all__ = [
     "geometry",
     "list_scenarios",
     "load_scenario",
+    "plan",
     "save_scenario",
     "scenario_from_dict",
     "smooth",
