@@ -277,8 +277,6 @@ def test_3d_wall_margins_match_closed_form():
             assert rep.transition_margins[k, m + j] == pytest.approx(ref, rel=1e-6, abs=1e-9)
 
 
-@pytest.mark.xfail(raises=np.linalg.LinAlgError, strict=False,
-                   reason="geometry.transition_clearances raises 'Singular matrix' for 3-D single half-spaces")
 def test_sampled_margins_agree_with_exact_geometry_3d_walls():
     sc = bn.load_scenario("cube3d")
     path = random_path(sc, np.random.default_rng(3), K=4)
