@@ -188,7 +188,9 @@ def _smoother_args(p: argparse.ArgumentParser, max_iter: int = 50, method: bool 
         g.add_argument("--method", choices=("ccp", "ipopt"), default="ccp",
                        help="ccp: convex-concave procedure (the paper's); ipopt: the same model by IPOPT")
     g.add_argument("--horizon", "-K", dest="horizon", type=_positive_int, default=None, metavar="K",
-                   help="time steps of the smoothed path (>= the path's edges); default: one per edge")
+                   help="time steps of the smoothed path, at least the path's edge count (edges are cut into "
+                        "equal steps); default: the scenario's [horizon] K if the path fits, else one step "
+                        "per edge")
     g.add_argument("--solver", default="CLARABEL",
                    help="conic solver of the CCP subproblems (CLARABEL, or another CVXPY solver such as SCS)")
     g.add_argument("--max-iter", type=_positive_int, default=max_iter, help="iteration limit of the smoother")
@@ -480,20 +482,33 @@ def _smooth(run: _Run, sc, path, method: str, *, keep_iterates: bool = False, la
     from .smoothing import smooth
 
     a = run.args
-    if a.horizon is not None and a.horizon < path.K:
-        raise ValidationError("--horizon", f"the path has {path.K} edges; K = {a.horizon} would drop vertices "
-                                           f"(choose K >= {path.K}, or leave it out for one step per edge)")
-    log.info("%ssmoothing with %s: K = %s, at most %d iterations", label, method.upper(),
-             a.horizon if a.horizon is not None else f"{path.K} (one step per edge)", a.max_iter)
+    K, why = _horizon(a.horizon, sc, path)
+    log.info("%ssmoothing with %s: K = %d (%s), at most %d iterations", label, method.upper(), K, why,
+             a.max_iter)
     t0 = time.perf_counter()
     try:
-        res = smooth(sc, path, method=method, K=a.horizon, max_iter=a.max_iter, tol=a.tol, solver=a.solver,
+        res = smooth(sc, path, method=method, K=K, max_iter=a.max_iter, tol=a.tol, solver=a.solver,
                      time_limit=a.time_limit, keep_iterates=keep_iterates, progress=not run.quiet)
     except ImportError as exc:  # a method whose module is not installed
         raise BeliefNLPError(f"method {method!r} is not available in this installation: {exc}") from None
     log.info("%s%s: %s, cost %.6g after %d iterations in %.1f s", label, method.upper(), res.status, res.cost,
              res.nit, time.perf_counter() - t0)
     return res
+
+
+def _horizon(requested: int | None, sc, path) -> tuple[int, str]:
+    """The smoother's K: --horizon if given; else the scenario's [horizon] K
+    when the path fits in it; else one step per path edge."""
+    if requested is not None:
+        if requested < path.K:
+            raise ValidationError("--horizon", f"the path has {path.K} edges; K = {requested} would drop vertices "
+                                               f"(choose K >= {path.K}, or leave it out)")
+        return requested, "--horizon"
+    if sc.K is not None and sc.K >= path.K:
+        return sc.K, "the scenario's horizon"
+    if sc.K is not None:
+        return path.K, f"one step per edge: the path has more edges than the scenario's horizon {sc.K}"
+    return path.K, "one step per edge"
 
 
 def _accepted_costs(res) -> list[float]:
@@ -650,7 +665,9 @@ def _cmd_compare(run: _Run) -> int:
         run.list_written()
         return code
     log.info("comparing %s on %s", ", ".join(a.methods), sc.name or "scenario")
-    records = compare(sc, path, methods=tuple(a.methods), K=a.horizon, max_iter=a.max_iter, tol=a.tol,
+    K, why = _horizon(a.horizon, sc, path)
+    log.info("K = %d (%s)", K, why)
+    records = compare(sc, path, methods=tuple(a.methods), K=K, max_iter=a.max_iter, tol=a.tol,
                       solver=a.solver, time_limit=a.time_limit, progress=not run.quiet)
     table = records_to_table(records)
     (run.out / "compare.json").write_text(json.dumps(_jsonable(records), indent=1, allow_nan=True))
