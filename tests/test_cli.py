@@ -250,7 +250,7 @@ def test_demo_quick_through_the_console_script(tmp_path):
 def test_demo_in_process_single_alpha(tmp_path, hand_path_file, capsys):
     code, out, err = run(["demo", "--quick", "--alphas", 0.1, "--no-gif", "--nodes", 200, "-q", "--out",
                           tmp_path], capsys)
-    assert code in (EXIT_OK, EXIT_FAILED)
+    assert code == EXIT_OK or (code == EXIT_FAILED and "planning failed" in err), err
     assert sorted(p.name for p in tmp_path.glob("*.gif")) == []
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["nodes"] == 200 and summary["max_iter"] == 3
