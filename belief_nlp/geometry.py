@@ -382,7 +382,11 @@ def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
         cS = c[n_ar, idx]                                     # (N, C, k)
         GS = G[n_ar[..., None], idx[..., :, None], idx[..., None, :]]   # (N, C, k, k)
         mu = _solve_small(GS, cS)
-        val = np.einsum("nck,nck->nc", cS, mu)
+        # ||u||^2 of the candidate point u = B_S^T mu itself (B = A L), whose
+        # feasibility is checked below: = c_S^T mu in exact arithmetic, but on
+        # ill-conditioned faces (slivers) c_S^T mu can even come out negative,
+        # while mu^T G_SS mu is always the distance of a real point
+        val = np.einsum("nck,nckl,ncl->nc", mu, GS, mu)
         ok = mask & np.isfinite(val)
         if np.any(check_all):
             GcS = G[n_ar[..., None], np.arange(F)[None, None, :, None], idx[:, :, None, :]]  # (N, C, F, k)
