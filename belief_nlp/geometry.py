@@ -388,6 +388,14 @@ def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
         # while mu^T G_SS mu is always the distance of a real point
         val = np.einsum("nck,nckl,ncl->nc", mu, GS, mu)
         ok = mask & np.isfinite(val)
+        if k > 1:
+            # Faces cut by (nearly) parallel planes -- slivers of a hull -- make
+            # G_SS numerically singular and mu meaningless. A meaningful solve
+            # has c_S^T mu = mu^T G_SS mu >= 0; drop candidates where the two
+            # disagree (the sliver's points stay within its width of the
+            # single-plane candidates, which remain).
+            c_mu = np.einsum("nck,nck->nc", cS, mu)
+            ok &= (val >= 0) & (np.abs(c_mu - val) <= 1e-7 * (1.0 + np.abs(val)))
         if np.any(check_all):
             GcS = G[n_ar[..., None], np.arange(F)[None, None, :, None], idx[:, :, None, :]]  # (N, C, F, k)
             resid = np.einsum("ncfk,nck->ncf", GcS, mu) - c[:, None, :]

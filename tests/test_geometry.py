@@ -208,7 +208,7 @@ def test_ellipse_clearance_2d_vs_boundary_sampling(pts, seed):
 @given(pts=points3, seed=st.integers(0, 2**32 - 1), box=st.booleans())
 def test_ellipse_clearance_3d_vs_oracle(pts, seed, box):
     """Boxes and hulls of random points in 3-D: exact triangle-distance oracle
-    (1e-9 relative: both are exact) and ellipsoid-surface sampling (no point
+    (1e-7 relative, see below) and ellipsoid-surface sampling (no point
     of the ellipsoid scaled just below the distance lies inside)."""
     rng = np.random.default_rng(seed)
     poly = polytope_3d(pts, rng, box)
@@ -216,7 +216,10 @@ def test_ellipse_clearance_3d_vs_oracle(pts, seed, box):
     x = rng.uniform(-1.5, 1.5, size=(n, 3))
     P = random_spd(rng, n, 3, 1e-4, 1.0)
     exact = geo.squared_mahalanobis_distance(x, P, [poly])[:, 0]
-    assert np.all(rel(exact, oracle_dist2(poly, x, P)) < 1e-8)
+    # 1e-7: hypothesis builds near-degenerate hulls (slivers, flat tetrahedra)
+    # whose vertex systems G_SS have condition numbers ~1e8-1e9; the face
+    # solve then carries ~cond * eps relative error (3e-8 seen), not a logic error
+    assert np.all(rel(exact, oracle_dist2(poly, x, P)) < 1e-7)
     u = rng.normal(size=(400, 3))
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     L = np.linalg.cholesky(P)
