@@ -512,7 +512,11 @@ def _horizon(requested: int | None, sc, path) -> tuple[int, str]:
 
 
 def _accepted_costs(res) -> list[float]:
-    return [h.cost for h in res.history if h.accepted and math.isfinite(h.cost)]
+    """Cost per iteration as drawn: CCP's accepted iterates (a rejected step is
+    not part of the run); for IPOPT every iterate, feasible or not (its
+    interior-point iterates become feasible only as it converges)."""
+    keep_all = getattr(res, "method", "ccp") != "ccp"
+    return [h.cost for h in res.history if (keep_all or h.accepted) and math.isfinite(h.cost)]
 
 
 def _status_line(res) -> str:
@@ -636,8 +640,9 @@ def _cmd_smooth(run: _Run) -> int:
                       f"cost {res.cost:.4g}", fontsize=9)
     _save_fig(run, fig, "smooth.png")
     fig, ax = plot_cost_history({res.method.upper(): _accepted_costs(res)},
-                                xlabel=f"{res.method.upper()} iteration")
-    ax.set_title(f"steering cost (alpha = {res.alpha:g})", fontsize=9)
+                                xlabel=f"{res.method.upper()} iteration", marker="o" if res.nit <= 60 else "")
+    note = "" if res.method == "ccp" else ", iterates feasible only near the end"
+    ax.set_title(f"steering cost (alpha = {res.alpha:g}{note})", fontsize=9)
     _save_fig(run, fig, "smooth_cost.png")
     if a.gif and res.iterates:
         gif, _ = animate_smoothing(sc, res.iterates, run.out / "smoothing.gif", dpi=min(a.dpi, 80))
