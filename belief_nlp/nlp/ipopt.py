@@ -135,20 +135,23 @@ class NLPProblem:
 
     Attributes
     ----------
-    z, f, g : CasADi SX decision vector, objective and constraints.
+    z, p, f, g : CasADi SX decision vector, parameter (the certificates lam_0
+        of the proximal term), objective and constraints.
     lbz, ubz, lbg, ubg : bounds (numpy).
-    parts : Function z -> (control [m^2], information [nats], regulariser).
+    parts : Function (z, p) -> (control [m^2], information [nats], regulariser).
     margins : Function z -> (collision margins (2 K J,), target margins (N,));
         collision margins are the certificate values
         -v^T P v + 2 lam^T (A x - b) - chi2 (a lower bound on the squared
         Mahalanobis clearance minus chi2), ordered (k, j, start/end).
     pack : Layout -> z values; unpack : z values -> Layout (S from its
         factor; Q as the variables say -- use model.tighten for the Kalman one).
+    anchor : Layout -> p values (its certificates).
     n_collision : number of collision rows at the start of g.
     """
 
     formulation: str
     z: ca.SX
+    p: ca.SX
     f: ca.SX
     g: ca.SX
     lbz: np.ndarray
@@ -159,6 +162,7 @@ class NLPProblem:
     margins: ca.Function
     pack: Callable[[Layout], np.ndarray]
     unpack: Callable[[np.ndarray], Layout]
+    anchor: Callable[[Layout], np.ndarray]
     n_collision: int
     info: dict = field(default_factory=dict)
 
@@ -192,7 +196,7 @@ def _psd_factor(S: np.ndarray) -> np.ndarray:
 
 
 def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float = 1e-6,
-              regularisation: float = 1e-4, anchor: Layout | None = None) -> NLPProblem:
+              regularisation: float = 1e-4) -> NLPProblem:
     """Build the NLP of the module docstring from ``model``'s CasADi functions.
 
     formulation : "cholesky" (S = L L^T, Q_k = M_k M_k^T lifted with the Kalman
@@ -201,8 +205,8 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
         Kalman recursion, no Q variables).
     margin : relative clearance margin kept in every collision constraint
         (m = margin * chi2) and absolute one (scaled length) in containment.
-    regularisation : eps of the certificates' proximal term (0 to drop it).
-    anchor : layout whose certificates are lam_0 (the warm start).
+    regularisation : eps of the certificates' proximal term (0 to drop it);
+        its centre lam_0 is the NLP's parameter (``NLPProblem.anchor``).
     """
     if formulation not in FORMULATIONS:
         raise ValidationError("formulation", f"must be one of {FORMULATIONS}, got {formulation!r}")
@@ -267,12 +271,9 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
             g_col.append(model.f_end_margin(xs[k], Q[k], lam, A, b))
     g_tgt = [model.f_containment(xs[K], Y[K], ca.DM(D.At[n]), D.bt[n]) for n in range(D.At.shape[0])]
 
-    reg = 0.0
-    lam0 = None
-    if anchor is not None:
-        lam0 = np.concatenate([anchor.lam[:, j, :nf[j]] for j in range(J)], axis=1).T     # (n_lam, K)
-    if regularisation and lam0 is not None:
-        reg = 0.5 * regularisation * ca.sumsqr(Lam - ca.DM(lam0))
+    Lam0 = ca.SX.sym("lam0", n_lam, K)
+    reg = 0.5 * regularisation * ca.sumsqr(Lam - Lam0)
+    p = ca.vec(Lam0)
 
     z = ca.veccat(X, Sv, Mv, Lam)
     g_col_v = ca.vertcat(*g_col)
@@ -291,7 +292,8 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
         lbz[nX + nS:nX + nS + nM] = m_lb.ravel(order="F")
     lbz[nX + nS + nM:] = 0.0                           # lam >= 0
 
-    parts = ca.Function("parts", [z], [control, information, reg], ["z"], ["control", "information", "regulariser"])
+    parts = ca.Function("parts", [z, p], [control, information, reg], ["z", "p"],
+                        ["control", "information", "regulariser"])
     margins = ca.Function("margins", [z], [g_col_v, g_tgt_v], ["z"], ["collision", "target"])
 
     def pack(lay: Layout) -> np.ndarray:
@@ -305,9 +307,11 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
             Mp = np.stack([[np.linalg.cholesky(0.5 * (lay.Q[k] + lay.Q[k].T))[i, j] for i, j in tri]
                            for k in range(2, K + 1)], 1) if K > 1 else np.zeros((t, 0))
             parts_.append(Mp.ravel(order="F"))
-        lam = np.concatenate([lay.lam[:, j, :nf[j]] for j in range(J)], axis=1).T
-        parts_.append(lam.ravel(order="F"))
+        parts_.append(anchor(lay))
         return np.concatenate(parts_)
+
+    def anchor(lay: Layout) -> np.ndarray:
+        return np.concatenate([lay.lam[:, j, :nf[j]] for j in range(J)], axis=1).T.ravel(order="F")
 
     def unpack(zv: np.ndarray) -> Layout:
         zv = np.asarray(zv, float).ravel()
@@ -342,8 +346,8 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
             lay = model.tighten(lay)
         return lay
 
-    return NLPProblem(formulation, z, control + D.alpha * information + reg, g, lbz, ubz, lbg, ubg, parts,
-                      margins, pack, unpack, n_col,
+    return NLPProblem(formulation, z, p, control + D.alpha * information + reg, g, lbz, ubz, lbg, ubg, parts,
+                      margins, pack, unpack, anchor, n_col,
                       info={"n_variables": int(z.shape[0]), "n_constraints": int(g.shape[0]),
                             "n_kalman": n_kal, "n_psd": n_psd, "n_target": n_tgt})
 
@@ -356,22 +360,43 @@ def _combinations(n: int, r: int) -> list[list[int]]:
 
 # ------------------------------------------------------------- callback
 class _Recorder(ca.Callback):
-    """IPOPT iteration callback: history, best feasible iterates, progress."""
+    """IPOPT iteration callback: history, best feasible iterates, progress.
 
-    def __init__(self, nlp: NLPProblem, keep: int, keep_all: bool, bar):
+    One recorder serves every attempt (restart) of a solve; ``begin`` resets
+    the per-attempt counter and sets the parameter values."""
+
+    def __init__(self, nlp: NLPProblem, alpha: float, keep: int, keep_all: bool, bar):
         ca.Callback.__init__(self)
         self.nlp = nlp
+        self.alpha = alpha
         self.nx = int(nlp.z.shape[0])
         self.ng = int(nlp.g.shape[0])
         self.keep = keep
         self.keep_all = keep_all
         self.bar = bar
         self.calls = 0
+        self.offset = 0
+        self.pv = None
+        self.budget = None
+        self.deadline = None
+        self.stop_reason = ""
         self.t_last = time.perf_counter()
-        self.rows: list[tuple] = []            # (ipopt iteration, control, info, min margin, viol, dt)
-        self.best: list[tuple] = []            # max-heap by cost via (-cost, it, z)
+        self.rows: list[tuple] = []            # (iteration, control, info, min margin, violation, dt)
+        self.best: list[tuple] = []            # min-heap of (-cost, iteration, z): the lowest costs
         self.all_z: list[np.ndarray] = []
         self.construct("belief_nlp_ipopt_recorder", {})
+
+    def begin(self, pv: np.ndarray, budget: int, deadline: float | None) -> None:
+        """Start an attempt: parameter values, iteration budget and wall-clock
+        deadline (the callback stops IPOPT at either; IPOPT then returns
+        User_Requested_Stop and ``stop_reason`` says why)."""
+        self.offset += max(self.calls - 1, 0)
+        self.calls = 0
+        self.pv = pv
+        self.budget = budget
+        self.deadline = deadline
+        self.stop_reason = ""
+        self.t_last = time.perf_counter()
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -400,125 +425,199 @@ class _Recorder(ca.Callback):
         self.calls += 1
         now = time.perf_counter()
         dt, self.t_last = now - self.t_last, now
-        if it == 0:                # IPOPT's iteration 0: the (bound-pushed) warm start
+        if it == 0:                # IPOPT's iteration 0 is the start point itself
             return [0]
+        it += self.offset
         zv = np.asarray(arg[0]).ravel()
         gv = np.asarray(arg[2]).ravel()
         nlp = self.nlp
         viol = float(max(np.max(nlp.lbg - gv, initial=0.0), np.max(gv - nlp.ubg, initial=0.0)))
-        ctrl, info, _ = (float(v) for v in nlp.parts(zv))
-        n_col = nlp.n_collision
-        m_col = gv[:n_col]
-        min_margin = float(min(np.min(m_col, initial=np.inf), np.min(gv[n_col:n_col + nlp.info["n_target"]],
-                                                                      initial=np.inf)))
+        ctrl, info, _ = (float(v) for v in nlp.parts(zv, self.pv))
+        n_col, n_tgt = nlp.n_collision, nlp.info["n_target"]
+        min_margin = float(min(np.min(gv[:n_col], initial=np.inf), np.min(gv[n_col:n_col + n_tgt], initial=np.inf)))
         self.rows.append((it, ctrl, info, min_margin, viol, dt))
-        cost = ctrl + nlp.info["alpha"] * info
-        # candidates for the fallback: iterates feasible for the NLP (tiny slack)
+        cost = ctrl + self.alpha * info
+        # candidates for the fallback: iterates feasible for the NLP
         if viol <= 1e-9 and np.isfinite(cost):
             item = (-cost, it, zv.copy())
             if len(self.best) < self.keep:
                 heapq.heappush(self.best, item)
-            elif item > self.best[0]:
+            elif self.keep and item > self.best[0]:
                 heapq.heapreplace(self.best, item)
         if self.keep_all:
             self.all_z.append(zv.copy())
         if self.bar is not None:
             self.bar.update(1)
             self.bar.set_postfix(cost=f"{cost:.5g}", viol=f"{viol:.1e}")
+        if self.budget is not None and self.calls - 1 >= self.budget:
+            self.stop_reason = "max_iter"
+            return [1]
+        if self.deadline is not None and now > self.deadline:
+            self.stop_reason = "time_limit"
+            return [1]
         return [0]
 
 
 # ------------------------------------------------------------- checking
-def _exact_check(model: BeliefModel, z: Layout, hazards: PolytopeSet) -> tuple[Layout, float, float]:
-    """Kalman-consistent layout (Lemma 2), its exact continuous-time clearance
-    margin min(dist2) - chi2 and its smallest target margin (scaled)."""
+def _exact_check(model: BeliefModel, z: Layout, hazards: PolytopeSet) -> tuple[Layout, bool]:
+    """Kalman-consistent layout (Lemma 2) and whether it is exactly safe:
+    continuous-time clearance min(dist2) >= chi2 for every transition and
+    hazard (geometry.transition_minimiser) and the final ellipse in the target."""
     zt = model.tighten(z)
     path = model.to_path(zt)
     tm = transition_minimiser(path.x[:-1], path.P[:-1], path.x[1:], path.transition_noise, hazards)
-    return zt, float(np.min(tm.dist2) - model.data.chi2), float(np.min(model.target_margins(zt)))
+    ok = bool(np.min(tm.dist2) >= model.data.chi2 and np.min(model.target_margins(zt)) >= 0)
+    return zt, ok
 
 
-def _ipopt_options(solver_options: dict | None, max_iter: int, tol: float,
-                   time_left: float | None) -> dict:
+def _exact_margin(model: BeliefModel, z: Layout, hazards: PolytopeSet) -> float:
+    path = model.to_path(z)
+    tm = transition_minimiser(path.x[:-1], path.P[:-1], path.x[1:], path.transition_noise, hazards)
+    return float(np.min(tm.dist2) - model.data.chi2)
+
+
+def _ipopt_options(solver_options: dict | None, max_iter: int, tol: float) -> dict:
     opts = dict(DEFAULT_IPOPT_OPTIONS)
     opts["max_iter"] = int(max_iter)
     opts["tol"] = float(tol)
-    if time_left is not None:
-        opts["max_wall_time"] = max(float(time_left), 1e-3)
     for key, value in (solver_options or {}).items():
         key = key[len("ipopt."):] if key.startswith("ipopt.") else key
         opts[key] = value
     return opts
 
 
+def _best_verified(model: BeliefModel, nlp: NLPProblem, recorder: _Recorder, z_end: np.ndarray | None,
+                   hazards: PolytopeSet, exclude: set) -> tuple[Layout | None, int | None, float]:
+    """The lowest-cost exactly safe point among IPOPT's last point and the
+    recorded feasible iterates: (layout, iteration or None for the last point, cost)."""
+    pool = []
+    if z_end is not None and np.all(np.isfinite(z_end)):
+        pool.append((None, z_end))
+    pool += [(it, zv) for _, it, zv in sorted(recorder.best, reverse=True)]   # lowest cost first
+    found = []
+    for it, zv in pool:
+        if it in exclude:
+            continue
+        try:
+            zt, ok = _exact_check(model, nlp.unpack(zv), hazards)
+        except np.linalg.LinAlgError:
+            continue
+        if ok:
+            found.append((model.cost(zt)[0], -1 if it is None else it, zt))
+            if it is None:       # the last point is safe: it is what IPOPT answered
+                break
+    if not found:
+        return None, None, np.inf
+    cost, it, zt = min(found, key=lambda r: r[0])
+    return zt, (None if it == -1 else it), cost
+
+
 # ------------------------------------------------------------------ main
 def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, max_iter: int | None = None,
           tol: float = 1e-4, solver_options: dict | None = None, time_limit: float | None = None,
           keep_iterates: bool = False, progress: bool = False, formulation: str = "cholesky",
-          regularisation: float = 1e-4, margin: float = 1e-6, candidates: int = 5) -> SmoothResult:
+          regularisation: float = 1e-4, margin: float = 1e-6, restarts: int = 1,
+          candidates: int = 5) -> SmoothResult:
     """Solve the smoothing problem with IPOPT from a warm start (see module doc).
 
-    Use :func:`belief_nlp.smooth` with ``method="ipopt"``; method options:
+    Use :func:`belief_nlp.smooth` with ``method="ipopt"``. Method options:
 
     formulation : "cholesky" (default), "minors" or "eliminated" (module doc).
     regularisation : eps of the certificates' proximal term (default 1e-4).
     margin : relative clearance margin kept in the constraints (1e-6).
+    restarts : when IPOPT stops without converging (iteration limit, failed
+        restoration, ...), restart it this many times from the best exactly
+        safe point found so far (default 1). The first attempt gets half the
+        iteration budget when a restart is allowed.
     candidates : feasible IPOPT iterates kept for the fallback (5).
 
-    ``max_iter`` is IPOPT's iteration limit (None: 3000); ``tol`` IPOPT's
+    ``max_iter`` is IPOPT's total iteration limit (None: 3000); ``tol`` IPOPT's
     tolerance on its scaled KKT error; ``solver_options`` are IPOPT options
     (with or without an "ipopt." prefix) and override :data:`DEFAULT_IPOPT_OPTIONS`;
+    ``time_limit`` bounds the wall time (IPOPT's max_wall_time);
     ``keep_iterates`` keeps every IPOPT iterate's path (they may be infeasible).
     """
     t_start = time.perf_counter()
     if max_iter is None:
         max_iter = DEFAULT_MAX_ITER
-    if not isinstance(regularisation, (int, float)) or regularisation < 0:
-        raise ValidationError("regularisation", f"must be a number >= 0, got {regularisation!r}")
-    if not isinstance(margin, (int, float)) or margin < 0:
-        raise ValidationError("margin", f"must be a number >= 0, got {margin!r}")
+    for name, value in (("regularisation", regularisation), ("margin", margin)):
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
+            raise ValidationError(name, f"must be a number >= 0, got {value!r}")
+    if not isinstance(restarts, int) or isinstance(restarts, bool) or restarts < 0:
+        raise ValidationError("restarts", f"must be an integer >= 0, got {restarts!r}")
     K = start.K
     model = BeliefModel(scenario, K, alpha)
     D = model.data
     hazards = PolytopeSet.build(scenario.hazards)
 
     z0 = model.tighten(model.from_path(start.path, start.lam))
-    _, margin0, _ = _exact_check(model, z0, hazards)
+    margin0 = _exact_margin(model, z0, hazards)
     cost0, ctrl0, info0 = model.cost(z0)
 
-    nlp = build_nlp(model, formulation, margin=margin, regularisation=regularisation, anchor=z0)
-    nlp.info["alpha"] = D.alpha
-    zinit = nlp.pack(z0)
-
+    nlp = build_nlp(model, formulation, margin=margin, regularisation=regularisation)
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=max_iter, desc="IPOPT", unit="it")
-    recorder = _Recorder(nlp, keep=max(int(candidates), 0), keep_all=keep_iterates, bar=bar)
-    time_left = None if time_limit is None else time_limit - (time.perf_counter() - t_start)
-    opts = _ipopt_options(solver_options, max_iter, tol, time_left)
+    recorder = _Recorder(nlp, D.alpha, keep=max(int(candidates), 0), keep_all=keep_iterates, bar=bar)
+    opts = _ipopt_options(solver_options, max_iter, tol)
+    max_iter = int(opts["max_iter"])
     try:
-        solver = ca.nlpsol("belief_nlp_ipopt", "ipopt", {"x": nlp.z, "f": nlp.f, "g": nlp.g},
+        solver = ca.nlpsol("belief_nlp_ipopt", "ipopt", {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
                            {"ipopt": opts, "print_time": False, "iteration_callback": recorder,
                             "error_on_fail": False, "show_eval_warnings": False})
     except RuntimeError as exc:  # bad option names or values
         raise SolverError(f"IPOPT could not be set up: {exc}") from None
     setup_time = time.perf_counter() - t_start
 
-    t_solve = time.perf_counter()
-    try:
-        sol = solver(x0=zinit, lbx=nlp.lbz, ubx=nlp.ubz, lbg=nlp.lbg, ubg=nlp.ubg)
-        z_end = np.asarray(sol["x"]).ravel()
-    except RuntimeError as exc:   # CasADi raises on some IPOPT exceptions
-        log.warning("IPOPT raised: %s", exc)
-        z_end = None
-    solve_time = time.perf_counter() - t_solve
+    # attempts: the first gets half the budget when a restart may follow
+    used, solve_time, attempts = 0, 0.0, 0
+    z_start, ipopt_status, z_end = z0, "not run", None
+    statuses: list[str] = []
+    tried: set = set()
+    best: tuple[Layout, str] | None = None       # (layout, where from) of the best exactly safe point
+    while True:
+        remaining = max_iter - used
+        budget = remaining if attempts >= restarts else max(1, remaining // 2)
+        deadline = None if time_limit is None else t_start + time_limit
+        if deadline is not None and time.perf_counter() >= deadline:
+            ipopt_status = "Maximum_WallTime_Exceeded"
+            break
+        pv = nlp.anchor(z_start)
+        recorder.begin(pv, budget, deadline)
+        t_solve = time.perf_counter()
+        try:
+            sol = solver(x0=nlp.pack(z_start), p=pv, lbx=nlp.lbz, ubx=nlp.ubz, lbg=nlp.lbg, ubg=nlp.ubg)
+            z_end = np.asarray(sol["x"]).ravel()
+        except RuntimeError as exc:   # CasADi raises on some IPOPT exceptions
+            log.warning("IPOPT raised: %s", exc)
+            z_end = None
+        solve_time += time.perf_counter() - t_solve
+        stats = solver.stats()
+        ipopt_status = str(stats.get("return_status", "unknown"))
+        if ipopt_status == "User_Requested_Stop" and recorder.stop_reason:
+            ipopt_status = {"max_iter": "Maximum_Iterations_Exceeded",
+                            "time_limit": "Maximum_WallTime_Exceeded"}[recorder.stop_reason]
+        statuses.append(ipopt_status)
+        used += int(stats.get("iter_count", 0))
+        attempts += 1
+        zt, it, c = _best_verified(model, nlp, recorder, z_end, hazards, tried)
+        if zt is not None and (best is None or c < model.cost(best[0])[0]):
+            best = (zt, "IPOPT's final point" if it is None else f"IPOPT iterate {it} (the best feasible one)")
+        status = map_status(ipopt_status)
+        final_ok = zt is not None and it is None
+        if status == "converged" and final_ok:
+            break
+        if attempts > restarts or status == "time_limit" or used >= max_iter or best is None:
+            break
+        # restart IPOPT afresh (new barrier and filter) from the best safe point so far
+        log.info("IPOPT %s after %d iterations; restarting from %s", ipopt_status, used, best[1])
+        z_start = best[0]
+        if it is not None:
+            tried.add(it)
     if bar is not None:
         bar.close()
-    stats = solver.stats()
-    ipopt_status = str(stats.get("return_status", "unknown"))
-    n_iter = int(stats.get("iter_count", len(recorder.rows)))
     status = map_status(ipopt_status)
 
     # history: iteration 0 = warm start (exact margin), then one record per IPOPT iteration
@@ -529,50 +628,38 @@ def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, m
     if len(history) > 1:
         history[-1].solver_status = ipopt_status
 
-    # exact check of the answer; fall back to the best feasible iterate, then the warm start
-    chosen, chosen_from = None, ""
-    if z_end is not None and np.all(np.isfinite(z_end)):
-        zt, m, tg = _exact_check(model, nlp.unpack(z_end), hazards)
-        if m >= 0 and tg >= 0:
-            chosen, chosen_from = zt, "IPOPT's final point"
-    fell_back = chosen is None
-    if fell_back:
-        for neg_cost, it, zv in sorted(recorder.best, reverse=True):   # lowest cost first
-            zt, m, tg = _exact_check(model, nlp.unpack(zv), hazards)
-            if m >= 0 and tg >= 0:
-                chosen, chosen_from = zt, f"IPOPT iterate {it} (the best feasible one)"
-                break
-    if chosen is None:
-        chosen, chosen_from = z0, "the warm start"
-
     from ..verify import verify
 
-    path = model.to_path(chosen, meta={"method": "ipopt", "solver": "IPOPT", "alpha": D.alpha,
-                                       "formulation": formulation, "ipopt_status": ipopt_status})
+    meta = {"method": "ipopt", "solver": "IPOPT", "alpha": D.alpha, "formulation": formulation,
+            "ipopt_status": ipopt_status}
+    final_is_answer = best is not None and best[1] == "IPOPT's final point" and status == "converged"
+    chosen, chosen_from = (best if best is not None else (z0, "the warm start"))
+    path = model.to_path(chosen, meta=meta)
     report = verify(scenario, path)
     if not report.safe and chosen is not z0:
         log.warning("IPOPT answer failed verification (%s); returning the warm start", report.summary())
         chosen, chosen_from = z0, "the warm start (the answer failed independent verification)"
-        path = model.to_path(z0, meta={"method": "ipopt", "solver": "IPOPT", "alpha": D.alpha,
-                                       "formulation": formulation, "ipopt_status": ipopt_status})
+        path = model.to_path(z0, meta=meta)
         report = verify(scenario, path)
-        fell_back = True
-    if fell_back:
-        if status == "converged":
-            status = "infeasible_iterate"
-        message = (f"IPOPT returned {ipopt_status} after {n_iter} iterations, but its last point failed the exact "
-                   f"safety check; {chosen_from} is returned ({STATUSES[status]})")
+        final_is_answer = False
+    tries = f" in {attempts} attempts ({', '.join(statuses)})" if attempts > 1 else ""
+    if status == "converged" and not final_is_answer:
+        status = "infeasible_iterate"
+        message = (f"IPOPT returned {ipopt_status} after {used} iterations{tries}, but its last point failed "
+                   f"the exact safety check; {chosen_from} is returned ({STATUSES[status]})")
+    elif status == "converged":
+        message = f"IPOPT returned {ipopt_status} after {used} iterations{tries}"
     else:
-        message = f"IPOPT returned {ipopt_status} after {n_iter} iterations" + (
-            "" if status == "converged" else f" ({STATUSES[status]})")
+        message = (f"IPOPT returned {ipopt_status} after {used} iterations{tries}; {chosen_from} is returned "
+                   f"({STATUSES[status]})")
     c, ctrl, info = model.cost(chosen)
     total = time.perf_counter() - t_start
-    log.info("IPOPT (%s): %s, cost %.8g after %d iterations, %.2f s", formulation, ipopt_status, c, n_iter, total)
+    log.info("IPOPT (%s): %s, cost %.8g after %d iterations, %.2f s", formulation, ipopt_status, c, used, total)
     iterates = None
     if keep_iterates:
         iterates = [model.to_path(z0)] + [model.to_path(model.tighten(nlp.unpack(zv))) for zv in recorder.all_z]
     return SmoothResult(
         path=path, cost=c, control=ctrl, information=info, success=status == "converged", status=status,
-        message=message, nit=n_iter, history=history, method="ipopt", solver="IPOPT", alpha=D.alpha,
+        message=message, nit=used, history=history, method="ipopt", solver="IPOPT", alpha=D.alpha,
         timings={"setup": setup_time, "solver": solve_time, "total": total},
         verification=report.to_dict(), initial_cost=cost0, iterates=iterates)
