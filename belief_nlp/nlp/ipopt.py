@@ -365,7 +365,7 @@ class _Recorder(ca.Callback):
     One recorder serves every attempt (restart) of a solve; ``begin`` resets
     the per-attempt counter and sets the parameter values."""
 
-    def __init__(self, nlp: NLPProblem, alpha: float, keep: int, keep_all: bool, bar):
+    def __init__(self, nlp: NLPProblem, alpha: float, keep: int, keep_all: bool, bar, stall: int = 0):
         ca.Callback.__init__(self)
         self.nlp = nlp
         self.alpha = alpha
@@ -380,6 +380,9 @@ class _Recorder(ca.Callback):
         self.budget = None
         self.deadline = None
         self.stop_reason = ""
+        self.stall = stall
+        self.best_cost = np.inf
+        self.best_it = 0
         self.t_last = time.perf_counter()
         self.rows: list[tuple] = []            # (iteration, control, info, min margin, violation, dt)
         self.best: list[tuple] = []            # min-heap of (-cost, iteration, z): the lowest costs
@@ -396,6 +399,8 @@ class _Recorder(ca.Callback):
         self.budget = budget
         self.deadline = deadline
         self.stop_reason = ""
+        self.best_cost = np.inf
+        self.best_it = 0
         self.t_last = time.perf_counter()
 
     def get_n_in(self):
@@ -438,7 +443,10 @@ class _Recorder(ca.Callback):
         self.rows.append((it, ctrl, info, min_margin, viol, dt))
         cost = ctrl + self.alpha * info
         # candidates for the fallback: iterates feasible for the NLP
-        if viol <= 1e-9 and np.isfinite(cost):
+        feasible = viol <= 1e-6 and np.isfinite(cost)     # candidates; the exact check decides
+        if feasible and cost < self.best_cost * (1 - 1e-7):
+            self.best_cost, self.best_it = cost, self.calls - 1
+        if feasible:
             item = (-cost, it, zv.copy())
             if len(self.best) < self.keep:
                 heapq.heappush(self.best, item)
@@ -454,6 +462,12 @@ class _Recorder(ca.Callback):
             return [1]
         if self.deadline is not None and now > self.deadline:
             self.stop_reason = "time_limit"
+            return [1]
+        if self.stall and feasible and self.calls - 1 - self.best_it >= self.stall:
+            # feasible, but no feasible iterate has lowered the cost for `stall`
+            # iterations: IPOPT is creeping (seen as long runs of tiny steps and
+            # watchdog trials next to an optimum); stop so a restart can finish
+            self.stop_reason = "stalled"
             return [1]
         return [0]
 
@@ -486,37 +500,35 @@ def _ipopt_options(solver_options: dict | None, max_iter: int, tol: float) -> di
     return opts
 
 
-def _best_verified(model: BeliefModel, nlp: NLPProblem, recorder: _Recorder, z_end: np.ndarray | None,
-                   hazards: PolytopeSet, exclude: set) -> tuple[Layout | None, int | None, float]:
-    """The lowest-cost exactly safe point among IPOPT's last point and the
-    recorded feasible iterates: (layout, iteration or None for the last point, cost)."""
+def _safe_points(model: BeliefModel, nlp: NLPProblem, recorder: _Recorder, z_end: np.ndarray | None,
+                 hazards: PolytopeSet, converged: bool) -> list[tuple[float, Layout, str, int | None]]:
+    """Exactly safe points among IPOPT's last point and the recorded feasible
+    iterates, as (cost, Kalman-consistent layout, description, iteration).
+    When IPOPT converged and its last point is safe, that point alone."""
     pool = []
     if z_end is not None and np.all(np.isfinite(z_end)):
         pool.append((None, z_end))
-    pool += [(it, zv) for _, it, zv in sorted(recorder.best, reverse=True)]   # lowest cost first
+    pool += [(it, zv) for _, it, zv in recorder.best]
     found = []
     for it, zv in pool:
-        if it in exclude:
-            continue
         try:
             zt, ok = _exact_check(model, nlp.unpack(zv), hazards)
         except np.linalg.LinAlgError:
             continue
-        if ok:
-            found.append((model.cost(zt)[0], -1 if it is None else it, zt))
-            if it is None:       # the last point is safe: it is what IPOPT answered
-                break
-    if not found:
-        return None, None, np.inf
-    cost, it, zt = min(found, key=lambda r: r[0])
-    return zt, (None if it == -1 else it), cost
+        if not ok:
+            continue
+        where = "IPOPT's final point" if it is None else f"IPOPT iterate {it} (the best feasible one)"
+        found.append((model.cost(zt)[0], zt, where, it))
+        if it is None and converged:
+            return found
+    return found
 
 
 # ------------------------------------------------------------------ main
 def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, max_iter: int | None = None,
           tol: float = 1e-4, solver_options: dict | None = None, time_limit: float | None = None,
           keep_iterates: bool = False, progress: bool = False, formulation: str = "cholesky",
-          regularisation: float = 1e-4, margin: float = 1e-6, restarts: int = 1,
+          regularisation: float = 1e-4, margin: float = 1e-6, restarts: int = 1, stall: int = 300,
           candidates: int = 5) -> SmoothResult:
     """Solve the smoothing problem with IPOPT from a warm start (see module doc).
 
@@ -526,9 +538,11 @@ def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, m
     regularisation : eps of the certificates' proximal term (default 1e-4).
     margin : relative clearance margin kept in the constraints (1e-6).
     restarts : when IPOPT stops without converging (iteration limit, failed
-        restoration, ...), restart it this many times from the best exactly
-        safe point found so far (default 1). The first attempt gets half the
-        iteration budget when a restart is allowed.
+        restoration, stalled), restart it this many times from the best
+        exactly safe point found so far (default 1). With a restart allowed,
+        the first attempt gets 2/3 of ``max_iter``.
+    stall : with restarts, stop an attempt at a feasible iterate once no
+        feasible iterate has lowered the cost for this many iterations (300).
     candidates : feasible IPOPT iterates kept for the fallback (5).
 
     ``max_iter`` is IPOPT's total iteration limit (None: 3000); ``tol`` IPOPT's
@@ -560,7 +574,8 @@ def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, m
         from tqdm.auto import tqdm
 
         bar = tqdm(total=max_iter, desc="IPOPT", unit="it")
-    recorder = _Recorder(nlp, D.alpha, keep=max(int(candidates), 0), keep_all=keep_iterates, bar=bar)
+    recorder = _Recorder(nlp, D.alpha, keep=max(int(candidates), 0), keep_all=keep_iterates, bar=bar,
+                         stall=stall if restarts else 0)
     opts = _ipopt_options(solver_options, max_iter, tol)
     max_iter = int(opts["max_iter"])
     try:
@@ -575,11 +590,11 @@ def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, m
     used, solve_time, attempts = 0, 0.0, 0
     z_start, ipopt_status, z_end = z0, "not run", None
     statuses: list[str] = []
-    tried: set = set()
-    best: tuple[Layout, str] | None = None       # (layout, where from) of the best exactly safe point
+    best = (cost0, z0, "the warm start")         # lowest-cost exactly safe point so far
+    answer = None                                # IPOPT's converged, exactly safe final point
     while True:
         remaining = max_iter - used
-        budget = remaining if attempts >= restarts else max(1, remaining // 2)
+        budget = remaining if attempts >= restarts else max(1, remaining - remaining // 3)
         deadline = None if time_limit is None else t_start + time_limit
         if deadline is not None and time.perf_counter() >= deadline:
             ipopt_status = "Maximum_WallTime_Exceeded"
@@ -597,25 +612,24 @@ def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, m
         stats = solver.stats()
         ipopt_status = str(stats.get("return_status", "unknown"))
         if ipopt_status == "User_Requested_Stop" and recorder.stop_reason:
-            ipopt_status = {"max_iter": "Maximum_Iterations_Exceeded",
-                            "time_limit": "Maximum_WallTime_Exceeded"}[recorder.stop_reason]
+            ipopt_status = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded",
+                            "stalled": "Stalled"}[recorder.stop_reason]
         statuses.append(ipopt_status)
         used += int(stats.get("iter_count", 0))
         attempts += 1
-        zt, it, c = _best_verified(model, nlp, recorder, z_end, hazards, tried)
-        if zt is not None and (best is None or c < model.cost(best[0])[0]):
-            best = (zt, "IPOPT's final point" if it is None else f"IPOPT iterate {it} (the best feasible one)")
         status = map_status(ipopt_status)
-        final_ok = zt is not None and it is None
-        if status == "converged" and final_ok:
+        found = _safe_points(model, nlp, recorder, z_end, hazards, status == "converged")
+        if status == "converged" and found and found[0][3] is None:
+            answer = found[0]
             break
-        if attempts > restarts or status == "time_limit" or used >= max_iter or best is None:
+        for cand in found:
+            if cand[0] < best[0]:
+                best = cand[:3]
+        if attempts > restarts or status == "time_limit" or used >= max_iter or best[1] is z_start:
             break
         # restart IPOPT afresh (new barrier and filter) from the best safe point so far
-        log.info("IPOPT %s after %d iterations; restarting from %s", ipopt_status, used, best[1])
-        z_start = best[0]
-        if it is not None:
-            tried.add(it)
+        log.info("IPOPT %s after %d iterations; restarting from %s", ipopt_status, used, best[2])
+        z_start = best[1]
     if bar is not None:
         bar.close()
     status = map_status(ipopt_status)
@@ -632,8 +646,8 @@ def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, m
 
     meta = {"method": "ipopt", "solver": "IPOPT", "alpha": D.alpha, "formulation": formulation,
             "ipopt_status": ipopt_status}
-    final_is_answer = best is not None and best[1] == "IPOPT's final point" and status == "converged"
-    chosen, chosen_from = (best if best is not None else (z0, "the warm start"))
+    final_is_answer = answer is not None
+    _, chosen, chosen_from = (answer[:3] if answer is not None else best)
     path = model.to_path(chosen, meta=meta)
     report = verify(scenario, path)
     if not report.safe and chosen is not z0:
