@@ -66,6 +66,14 @@ IPOPT success, verified safe, cost within 1 % of CCP or lower)
   diagonals of M: 20/24 (bounds: 24/24). Positive L diagonals by bounds:
   22/24, S by principal minors (``formulation="minors"``): 23/24, slower.
 
+History. ``SmoothResult.history[0]`` is the warm start; then one record per
+IPOPT iteration (restarts continue the count): its cost parts, ``min_margin``
+= the smallest NLP margin (certificate value of the collision rows, a lower
+bound on the squared Mahalanobis clearance minus chi2, and the target rows),
+``accepted`` = the iterate satisfies the NLP's constraints to 1e-6,
+``kalman_gap`` = the largest Kalman-equality residual (relative, scaled
+units), ``wall_time`` = time since the previous iteration.
+
 Every answer is checked like CCP's iterates: exact continuous-time clearance
 (geometry.transition_minimiser) on the Kalman-consistent path
 (model.tighten -> model.to_path), target containment, then
@@ -384,7 +392,7 @@ class _Recorder(ca.Callback):
         self.best_cost = np.inf
         self.best_it = 0
         self.t_last = time.perf_counter()
-        self.rows: list[tuple] = []            # (iteration, control, info, min margin, violation, dt)
+        self.rows: list[tuple] = []            # (iteration, control, info, min margin, violation, dt, kalman gap)
         self.best: list[tuple] = []            # min-heap of (-cost, iteration, z): the lowest costs
         self.all_z: list[np.ndarray] = []
         self.construct("belief_nlp_ipopt_recorder", {})
@@ -440,7 +448,11 @@ class _Recorder(ca.Callback):
         ctrl, info, _ = (float(v) for v in nlp.parts(zv, self.pv))
         n_col, n_tgt = nlp.n_collision, nlp.info["n_target"]
         min_margin = float(min(np.min(gv[:n_col], initial=np.inf), np.min(gv[n_col:n_col + n_tgt], initial=np.inf)))
-        self.rows.append((it, ctrl, info, min_margin, viol, dt))
+        kal = gv[n_col + n_tgt:n_col + n_tgt + nlp.info["n_kalman"]]
+        # Kalman rows are entries of Q_k^-1 - Y_{k-1}^-1 - W in scaled units, where
+        # ||Y^-1 + W|| >= ||W'|| = 1: the largest one is a relative gap
+        kgap = float(np.max(np.abs(kal), initial=0.0))
+        self.rows.append((it, ctrl, info, min_margin, viol, dt, kgap))
         cost = ctrl + self.alpha * info
         # candidates for the fallback: iterates feasible for the NLP
         feasible = viol <= 1e-6 and np.isfinite(cost)     # candidates; the exact check decides
@@ -635,10 +647,10 @@ def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, m
     status = map_status(ipopt_status)
 
     # history: iteration 0 = warm start (exact margin), then one record per IPOPT iteration
-    history = [IterationRecord(0, cost0, ctrl0, info0, "warm_start", min_margin=margin0)]
-    for it, ctrl, info, mmin, viol, dt in recorder.rows:
+    history = [IterationRecord(0, cost0, ctrl0, info0, "warm_start", min_margin=margin0, kalman_gap=0.0)]
+    for it, ctrl, info, mmin, viol, dt, kgap in recorder.rows:
         history.append(IterationRecord(it, ctrl + D.alpha * info, ctrl, info, "", dt, 0.0, dt, 1,
-                                       accepted=viol <= 1e-6, min_margin=mmin))
+                                       accepted=viol <= 1e-6, min_margin=mmin, kalman_gap=kgap))
     if len(history) > 1:
         history[-1].solver_status = ipopt_status
 
