@@ -17,9 +17,10 @@ from .nlp.result import IterationRecord, SmoothResult
 from .nlp.warmstart import WarmStart, warm_start
 from .smoothing import smooth
 from .planner import IGRRTStar, PlanResult, plan
+from .compare import compare, records_to_table
 
 # Heavier or optional modules load on first use (plotting pulls in pyplot).
-_LAZY = {"plotting", "compare", "export"}
+_LAZY = {"plotting", "export"}
 
 
 def __getattr__(name: str):
@@ -46,10 +47,12 @@ __all__ = [
     "ValidationError",
     "VerificationReport",
     "belief",
+    "compare",
     "geometry",
     "list_scenarios",
     "load_scenario",
     "plan",
+    "records_to_table",
     "save_scenario",
     "scenario_from_dict",
     "smooth",
