@@ -175,7 +175,8 @@ def _planner_args(p: argparse.ArgumentParser, nodes: int = 500, title: str = "pl
                    help="do not prune nodes that cannot beat the best path")
 
 
-def _smoother_args(p: argparse.ArgumentParser, max_iter: int = 50, method: bool = True, path: bool = False) -> None:
+def _smoother_args(p: argparse.ArgumentParser, max_iter: int | None = 50, method: bool = True,
+                   path: bool = False) -> None:
     if path:
         p.add_argument("--path", type=Path, metavar="FILE",
                        help="the path to smooth: a plan result, belief path or smoothing result (.json/.npz); "
@@ -193,7 +194,10 @@ def _smoother_args(p: argparse.ArgumentParser, max_iter: int = 50, method: bool 
                         "per edge")
     g.add_argument("--solver", default="CLARABEL",
                    help="conic solver of the CCP subproblems (CLARABEL, or another CVXPY solver such as SCS)")
-    g.add_argument("--max-iter", type=_positive_int, default=max_iter, help="iteration limit of the smoother")
+    g.add_argument("--max-iter", type=_positive_int, default=max_iter,
+                   help="iteration limit of the smoother" + (
+                       " (default: 100 for CCP, 3000 for IPOPT, whose iterations are Newton steps)"
+                       if max_iter is None else ""))
     g.add_argument("--tol", type=_positive_float, default=1e-4,
                    help="stop when an iteration lowers the cost by less than this fraction")
 
@@ -262,15 +266,17 @@ def build_parser() -> argparse.ArgumentParser:
     cp = sub.add_parser(
         "compare", help="smooth one path with several methods and tabulate cost, time, status",
         formatter_class=_Formatter,
-        description="Smooth the same path with each method (default: ccp and ipopt) and compare. Writes "
-                    "OUT/compare.json (the records), OUT/compare.txt (the table, also printed), "
+        description="Smooth the same path with each method (default: ccp and ipopt), from one shared warm "
+                    "start, and compare. Writes OUT/compare.json (one record per method: status, cost, "
+                    "iterations, times, verification, history and path), OUT/compare_path_<method>.json|npz "
+                    "(BeliefPath.load), OUT/compare.txt (the table, also printed), "
                     "OUT/compare.png (the smoothed paths) and OUT/compare_cost.png (cost per iteration). "
                     "Exit code 3 when every method failed.",
         epilog="Example:\n  belief-nlp compare paper-multi --path out/plan.json --methods ccp ipopt")
     _scenario_arg(cp)
     cp.add_argument("--methods", nargs="+", choices=("ccp", "ipopt"), default=["ccp", "ipopt"],
                     help="methods to run")
-    _smoother_args(cp, method=False, path=True)
+    _smoother_args(cp, max_iter=None, method=False, path=True)
     _planner_args(cp, title="planner (only without --path)")
     _common(cp)
     cp.set_defaults(func=_cmd_compare)
@@ -679,6 +685,10 @@ def _cmd_compare(run: _Run) -> int:
     run.wrote(run.out / "compare.json")
     (run.out / "compare.txt").write_text(table + "\n")
     run.wrote(run.out / "compare.txt")
+    for rec in records:
+        p = _record_path(rec)
+        if p is not None:
+            _save_path(run, p, f"compare_path_{rec.get('method')}")
     _compare_figures(run, sc, path, records)
     run.list_written()
     if not run.quiet:
@@ -721,12 +731,14 @@ def _compare_figures(run: _Run, sc, path, records: list[dict]) -> None:
         else:
             ax.set_title(f"{method}: {rec.get('status')}", fontsize=9)
         hist = rec.get("history")
-        if hist:
-            histories[method] = [h for h in hist if (h.get("accepted", True) if isinstance(h, dict)
-                                                     else getattr(h, "accepted", True))]
+        if hist:  # CCP: accepted iterates; IPOPT: every iterate (feasible only near the end)
+            histories[method] = [h["cost"] for h in hist if (method != "ccp" or h.get("accepted", True))
+                                 and h.get("cost") is not None and math.isfinite(h["cost"])]
     _save_fig(run, fig, "compare.png")
     if histories:
-        fig, ax = plot_cost_history(histories, xlabel="iteration", log=True)
+        fig, ax = plot_cost_history(histories, xlabel="iteration (CCP: convex solves; IPOPT: Newton steps)",
+                                    log=True, marker="")
+        ax.set_title("steering cost per iteration", fontsize=9)
         _save_fig(run, fig, "compare_cost.png")
 
 

@@ -198,14 +198,20 @@ def test_smooth_with_ipopt(tmp_path, hand_path_file, capsys):
 @pytest.mark.skipif(importlib.util.find_spec("belief_nlp.compare") is None,
                     reason="belief_nlp.compare is not in this tree yet")
 def test_compare_writes_records_table_and_figures(tmp_path, hand_path_file, capsys):
-    code, out, err = run(["compare", "paper-multi", "--path", hand_path_file, "--methods", "ccp",
-                          "--max-iter", 2, "-q", "--out", tmp_path], capsys)
+    code, out, err = run(["compare", "paper-multi", "--path", hand_path_file, "--methods", "ccp", "ipopt",
+                          "--max-iter", 400, "--format", "npz", "--out", tmp_path], capsys)
     assert code == EXIT_OK, err
     records = json.loads((tmp_path / "compare.json").read_text())
-    assert [r["method"] for r in records] == ["ccp"]
+    assert [r["method"] for r in records] == ["ccp", "ipopt"]
     table = (tmp_path / "compare.txt").read_text()
-    assert "ccp" in table
+    assert "ccp" in table and "ipopt" in table and table.strip() in out
+    for rec in records:
+        assert rec["K"] == 20 and rec["history"] and rec["status"] != "error", rec["message"]
+        path = bn.BeliefPath.load(tmp_path / f"compare_path_{rec['method']}.npz")
+        assert path == bn.BeliefPath.from_dict(rec["path"])
+        assert bn.verify(bn.load_scenario("paper-multi"), path).safe == rec["safe"] is True
     assert_image(tmp_path / "compare.png")
+    assert_image(tmp_path / "compare_cost.png")
 
 
 # -------------------------------------------------------------------- demo
