@@ -373,14 +373,13 @@ class _Recorder(ca.Callback):
     One recorder serves every attempt (restart) of a solve; ``begin`` resets
     the per-attempt counter and sets the parameter values."""
 
-    def __init__(self, nlp: NLPProblem, alpha: float, keep: int, keep_all: bool, bar, stall: int = 0):
+    def __init__(self, nlp: NLPProblem, alpha: float, keep: int, bar, stall: int = 0):
         ca.Callback.__init__(self)
         self.nlp = nlp
         self.alpha = alpha
         self.nx = int(nlp.z.shape[0])
         self.ng = int(nlp.g.shape[0])
         self.keep = keep
-        self.keep_all = keep_all
         self.bar = bar
         self.calls = 0
         self.offset = 0
@@ -392,9 +391,10 @@ class _Recorder(ca.Callback):
         self.best_cost = np.inf
         self.best_it = 0
         self.t_last = time.perf_counter()
-        self.rows: list[tuple] = []            # (iteration, control, info, min margin, violation, dt, kalman gap)
-        self.best: list[tuple] = []            # min-heap of (-cost, iteration, z): the lowest costs
-        self.all_z: list[np.ndarray] = []
+        self.rows: list[tuple] = []            # (iteration, min margin, violation, dt, kalman gap)
+        self.zs: list[np.ndarray] = []         # every iterate (for the history's costs and keep_iterates)
+        self.pvs: list[np.ndarray] = []        # the parameter of each attempt
+        self.best: list[tuple] = []            # min-heap of (-objective, iteration, z): the lowest
         self.construct("belief_nlp_ipopt_recorder", {})
 
     def begin(self, pv: np.ndarray, budget: int, deadline: float | None) -> None:
@@ -404,6 +404,7 @@ class _Recorder(ca.Callback):
         self.offset += max(self.calls - 1, 0)
         self.calls = 0
         self.pv = pv
+        self.pvs.append(pv)
         self.budget = budget
         self.deadline = deadline
         self.stop_reason = ""
@@ -424,12 +425,14 @@ class _Recorder(ca.Callback):
         return "ret"
 
     def get_sparsity_in(self, i):
+        # only x, f and g are used; empty multipliers keep the per-iteration
+        # conversion cheap (the callback was 20 % of the solve time otherwise)
         name = ca.nlpsol_out(i)
         if name == "f":
             return ca.Sparsity.dense(1)
-        if name in ("x", "lam_x"):
+        if name == "x":
             return ca.Sparsity.dense(self.nx)
-        if name in ("g", "lam_g"):
+        if name == "g":
             return ca.Sparsity.dense(self.ng)
         return ca.Sparsity(0, 0)
 
@@ -441,31 +444,29 @@ class _Recorder(ca.Callback):
         if it == 0:                # IPOPT's iteration 0 is the start point itself
             return [0]
         it += self.offset
-        zv = np.asarray(arg[0]).ravel()
-        gv = np.asarray(arg[2]).ravel()
+        zv = arg[0].full().ravel()
+        gv = arg[2].full().ravel()
+        cost = float(arg[1])                    # objective incl. the tiny proximal term: ranks iterates
         nlp = self.nlp
         viol = float(max(np.max(nlp.lbg - gv, initial=0.0), np.max(gv - nlp.ubg, initial=0.0)))
-        ctrl, info, _ = (float(v) for v in nlp.parts(zv, self.pv))
         n_col, n_tgt = nlp.n_collision, nlp.info["n_target"]
         min_margin = float(min(np.min(gv[:n_col], initial=np.inf), np.min(gv[n_col:n_col + n_tgt], initial=np.inf)))
         kal = gv[n_col + n_tgt:n_col + n_tgt + nlp.info["n_kalman"]]
         # Kalman rows are entries of Q_k^-1 - Y_{k-1}^-1 - W in scaled units, where
         # ||Y^-1 + W|| >= ||W'|| = 1: the largest one is a relative gap
         kgap = float(np.max(np.abs(kal), initial=0.0))
-        self.rows.append((it, ctrl, info, min_margin, viol, dt, kgap))
-        cost = ctrl + self.alpha * info
+        self.rows.append((it, min_margin, viol, dt, kgap))
+        self.zs.append(zv)                      # cost parts evaluated in one batch after the solve
         # candidates for the fallback: iterates feasible for the NLP
         feasible = viol <= 1e-6 and np.isfinite(cost)     # candidates; the exact check decides
         if feasible and cost < self.best_cost * (1 - 1e-7):
             self.best_cost, self.best_it = cost, self.calls - 1
         if feasible:
-            item = (-cost, it, zv.copy())
+            item = (-cost, it, zv)
             if len(self.best) < self.keep:
                 heapq.heappush(self.best, item)
             elif self.keep and item > self.best[0]:
                 heapq.heapreplace(self.best, item)
-        if self.keep_all:
-            self.all_z.append(zv.copy())
         if self.bar is not None:
             self.bar.update(1)
             self.bar.set_postfix(cost=f"{cost:.5g}", viol=f"{viol:.1e}")
@@ -586,8 +587,7 @@ def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, m
         from tqdm.auto import tqdm
 
         bar = tqdm(total=max_iter, desc="IPOPT", unit="it")
-    recorder = _Recorder(nlp, D.alpha, keep=max(int(candidates), 0), keep_all=keep_iterates, bar=bar,
-                         stall=stall if restarts else 0)
+    recorder = _Recorder(nlp, D.alpha, keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0)
     opts = _ipopt_options(solver_options, max_iter, tol)
     max_iter = int(opts["max_iter"])
     try:
@@ -648,9 +648,12 @@ def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, m
 
     # history: iteration 0 = warm start (exact margin), then one record per IPOPT iteration
     history = [IterationRecord(0, cost0, ctrl0, info0, "warm_start", min_margin=margin0, kalman_gap=0.0)]
-    for it, ctrl, info, mmin, viol, dt, kgap in recorder.rows:
-        history.append(IterationRecord(it, ctrl + D.alpha * info, ctrl, info, "", dt, 0.0, dt, 1,
-                                       accepted=viol <= 1e-6, min_margin=mmin, kalman_gap=kgap))
+    if recorder.zs:
+        Z = np.stack(recorder.zs, axis=1)
+        ctrls, infos, _ = (np.asarray(v).ravel() for v in nlp.parts.map(Z.shape[1])(Z, recorder.pvs[0]))
+        for (it, mmin, viol, dt, kgap), ctrl, info in zip(recorder.rows, ctrls, infos):
+            history.append(IterationRecord(it, float(ctrl + D.alpha * info), float(ctrl), float(info), "", dt, 0.0,
+                                           dt, 1, accepted=viol <= 1e-6, min_margin=mmin, kalman_gap=kgap))
     if len(history) > 1:
         history[-1].solver_status = ipopt_status
 
@@ -683,7 +686,7 @@ def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, m
     log.info("IPOPT (%s): %s, cost %.8g after %d iterations, %.2f s", formulation, ipopt_status, c, used, total)
     iterates = None
     if keep_iterates:
-        iterates = [model.to_path(z0)] + [model.to_path(model.tighten(nlp.unpack(zv))) for zv in recorder.all_z]
+        iterates = [model.to_path(z0)] + [model.to_path(model.tighten(nlp.unpack(zv))) for zv in recorder.zs]
     return SmoothResult(
         path=path, cost=c, control=ctrl, information=info, success=status == "converged", status=status,
         message=message, nit=used, history=history, method="ipopt", solver="IPOPT", alpha=D.alpha,
