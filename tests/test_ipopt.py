@@ -150,6 +150,19 @@ def test_keep_iterates(small_start):
     assert all(isinstance(p, bn.BeliefPath) and p.K == ws.K for p in res.iterates)
 
 
+def test_cache_reuses_the_solver(small_start):
+    sc, ws = small_start
+    from belief_nlp.nlp.ipopt import clear_cache
+
+    clear_cache()
+    first = bn.smooth(sc, ws, method="ipopt", max_iter=3000, alpha=0.5)
+    again = bn.smooth(sc, ws, method="ipopt", max_iter=3000, alpha=0.5)
+    fresh = bn.smooth(sc, ws, method="ipopt", max_iter=3000, alpha=0.5, cache=False)
+    assert again.timings["setup"] < 0.5 * first.timings["setup"]
+    assert again.cost == first.cost == fresh.cost and again.nit == first.nit
+    assert len(again.history) == len(first.history)          # the recorder starts afresh
+
+
 def test_status_mapping():
     assert map_status("Solve_Succeeded") == "converged"
     assert map_status("Solved_To_Acceptable_Level") == "converged"

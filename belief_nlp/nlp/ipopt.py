@@ -27,44 +27,72 @@ certificate lam_{k,j} >= 0 per transition and hazard (Theorem 1 with errata
          b_n - a_n^T x_K - chi sqrt(a_n^T Y_K^-1 a_n) >= m'                 (final_cond)
     with Y_k = Q_k + S_k, v = A_j^T lam_{k,j}, m = 1e-6 chi2, m' = 1e-6 (scaled length).
 
-The relaxed Kalman constraint of prob_2 (Q_k^-1 >= Y_{k-1}^-1 + W) is tight at
-the optimum (Lemma 2), so it is imposed as an equality: as an inequality it is
-degenerate there (the PSD matrix is 0, every principal minor active with zero
-gradient) and IPOPT did not converge in 0 of 24 test runs.
+Settings and why (measurements)
+-------------------------------
+Two test sets on paper-multi, both alphas, the criterion being "IPOPT
+reports success, the path passes verify, cost within 1 % of CCP's converged
+value or lower": set A, 24 runs (the hand path of tests/conftest.py at K = 20
+and 40, ten per-step IG-RRT* plans at one step per edge, K = 7..12); set B,
+38 runs (IG-RRT* seeds 10-19 planned at alpha = 0.1 and 1.0, K = 3..20).
+Each line changes one thing against the final settings.
 
-What made IPOPT converge (measured on 62 paper-multi runs: the hand path of
-tests/conftest.py at K = 20 and 40, 10 per-step IG-RRT* plans at one step per
-edge, and 19 plans at alpha = 0.1 / 1.0 with K = 3..20; both alphas; criterion:
-IPOPT success, verified safe, cost within 1 % of CCP or lower)
------------------------------------------------------------------------------
-* **Lifting Q** (Q_k as variables with the Kalman equality; "multiple
-  shooting") instead of eliminating it by the recursion: 24/24 vs 22/24 runs
-  and 4x less time per iteration (the eliminated form's expressions nest K
-  inverses). Kept as ``formulation="eliminated"``.
+=====================================================  ==========  ==========
+variant                                                set A       set B
+=====================================================  ==========  ==========
+final (below), without restarts                       24/24       37/38
+final, with one restart (default)                      62/62 (A and B together)
+IPOPT defaults + Cholesky S, Q eliminated              ~9/24 (hand path: restoration failure
+                                                       / infeasible, as numerics.md reports)
+Q eliminated by the Kalman recursion (single shooting) 22/24, 4x slower per iteration
+  (``formulation="eliminated"``)
+S by principal minors (``formulation="minors"``)       23/24       --, ~1.5x slower
+relaxed Kalman inequality by minors instead of =       0/24
+no proximal term on lam (eps = 0)                      20/24
+eps = 1e-5 .. 1e-7                                     20-22/24
+eps = 1e-3 / 1e-2 (cost bias 0.1-0.4 % / ~1 %)         23/24 / 12/24
+monotone mu (IPOPT default)                            21/24       --, 2x slower
+bound_push = bound_frac = 1e-2 (IPOPT default)         24/24       34/38
+lengths in metres instead of sigma units               21/24
+start lam at the margin-maximising lambda*             11/24
+limited-memory Hessian (L-BFGS)                        1/24
+exp-parameterised diagonal of M (instead of bounds)    20/24
+L with a positive diagonal (bounds)                    22/24       33/38, fewer iterations
+=====================================================  ==========  ==========
+
+Why these work:
+
+* **Lifting Q** (Q_k = M_k M_k^T as variables tied by the Kalman equality --
+  "multiple shooting") keeps every constraint local in k; eliminating Q nests
+  K inverses in every expression (deep, dense Hessian, 20-30 ms per
+  iteration against 5-7 ms).
+* **Equality, not the relaxed Kalman inequality.** The relaxation of prob_2
+  (Q_k^-1 >= Y_{k-1}^-1 + W) is tight at the optimum (Lemma 2); as an
+  inequality the PSD matrix is 0 there and every principal minor is active
+  with a zero gradient: degenerate, and IPOPT never converged.
 * **A tiny proximal term on the certificates**, eps/2 ||lam - lam_0||^2 with
-  eps = 1e-4 and lam_0 the warm start's certificates. For a hazard far from
-  the path, lam may move in a large set without changing anything, so the
-  Lagrangian is flat there; once mu is small, IPOPT took huge steps along
-  those directions (seen as many far-away lam growing at once), the concave
-  quadratic constraints overshot, and it fell into restoration -- often
-  right at the optimum. The term gives these directions curvature eps. It
-  changes the optimum by O(eps): measured cost bias 0.01-0.04 % at 1e-4,
-  0.1-0.4 % at 1e-3, 1 % at 1e-2; runs converging: 24/24 at 1e-4, 21-22/24 at
-  1e-5..1e-7, 20/24 without (same settings otherwise).
-* **Adaptive barrier parameter** (``mu_strategy="adaptive"``, LOQO oracle):
-  24/24 vs 21/24 with the default monotone strategy, in about half the time.
-* **bound_push = bound_frac = 1e-4** (default 1e-2): the warm start is
-  already interior; pushing it 1e-2 away from the bounds undoes part of it.
-  38/38 vs 34/38 on the harder set.
-* **constr_viol_tol = 1e-8** with **tol = 1e-4**: IPOPT stops at a scaled KKT
-  error of 1e-4 (final costs within 0.1 % of the 1e-8 answers, half the
-  iterations) but only on points feasible to 1e-8, below the 1e-6 chi2 margin
-  kept in every collision constraint, so answers pass the exact check.
-* Scaled units (model.py); lengths in metres instead: 21/24. Certificates
-  started at the margin-maximising lambda* instead of the warm start's
-  smallest valid ones: 11/24. Exact Hessian; L-BFGS: 1/24. exp-parameterised
-  diagonals of M: 20/24 (bounds: 24/24). Positive L diagonals by bounds:
-  22/24, S by principal minors (``formulation="minors"``): 23/24, slower.
+  eps = 1e-4 and lam_0 the start's certificates (an NLP parameter). For a
+  hazard far from the path, lam may move in a large set without changing
+  anything: the Lagrangian is flat there. Once mu was small, IPOPT took huge
+  steps along these directions (seen as many far-away lam growing at once),
+  the concave quadratic constraints overshot and it fell into restoration --
+  often right at the optimum. The term gives those directions curvature eps
+  and biases the cost by O(eps): measured 0.01-0.04 % at 1e-4.
+* **Adaptive mu** (LOQO oracle), **bound_push = bound_frac = 1e-4** (the
+  warm start is already interior; the default 1e-2 push undoes part of it),
+  **tol = 1e-4** (IPOPT's scaled KKT error; final costs within 0.1 % of the
+  tol = 1e-8 answers in half the iterations) with **constr_viol_tol = 1e-8**
+  (below the 1e-6 chi2 margin kept in every collision row, so answers pass
+  the exact check).
+* **Certificates**: the warm start's smallest valid ones (warmstart.py) start
+  IPOPT near the active side of every pair; the margin-maximising lambda*
+  gives large constraint curvature and worse convergence.
+* **Restart on a stall**: twice in 62 runs IPOPT crept for >1000 iterations
+  next to the optimum (watchdog steps, tiny line-search steps, dual
+  infeasibility stuck near 7e-5). An attempt that has been feasible without
+  lowering the cost for ``stall`` = 300 iterations (or that hits its share of
+  the iteration budget, or fails) is stopped and IPOPT restarted from the
+  best exactly safe point with a fresh barrier and filter; both then
+  converged within ~100 more iterations.
 
 History. ``SmoothResult.history[0]`` is the warm start; then one record per
 IPOPT iteration (restarts continue the count): its cost parts, ``min_margin``
@@ -87,6 +115,7 @@ from __future__ import annotations
 import heapq
 import logging
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -100,7 +129,7 @@ from .model import BeliefModel, Layout
 from .result import STATUSES, IterationRecord, SmoothResult
 from .warmstart import WarmStart
 
-__all__ = ["ipopt", "build_nlp", "NLPProblem", "FORMULATIONS", "DEFAULT_IPOPT_OPTIONS", "map_status"]
+__all__ = ["ipopt", "build_nlp", "NLPProblem", "FORMULATIONS", "DEFAULT_IPOPT_OPTIONS", "map_status", "clear_cache"]
 
 log = logging.getLogger("belief_nlp.smoother")
 
@@ -397,6 +426,12 @@ class _Recorder(ca.Callback):
         self.best: list[tuple] = []            # min-heap of (-objective, iteration, z): the lowest
         self.construct("belief_nlp_ipopt_recorder", {})
 
+    def reset(self, keep: int, bar, stall: int) -> None:
+        """Forget a previous solve (the recorder lives as long as its solver)."""
+        self.keep, self.bar, self.stall = keep, bar, stall
+        self.calls = self.offset = 0
+        self.rows, self.zs, self.pvs, self.best = [], [], [], []
+
     def begin(self, pv: np.ndarray, budget: int, deadline: float | None) -> None:
         """Start an attempt: parameter values, iteration budget and wall-clock
         deadline (the callback stops IPOPT at either; IPOPT then returns
@@ -537,12 +572,39 @@ def _safe_points(model: BeliefModel, nlp: NLPProblem, recorder: _Recorder, z_end
     return found
 
 
+# ------------------------------------------------------------------ cache
+# (id(scenario), key) -> (scenario, (nlp, solver, recorder)), least recently
+# used first. Scenarios are not hashable (they compare by content), so entries
+# are keyed by identity and hold their scenario (a bounded number of them).
+_CACHE: "OrderedDict[tuple, tuple]" = OrderedDict()
+_CACHE_SIZE = 6
+
+
+def _cache_get(scenario: Scenario, key: tuple):
+    hit = _CACHE.get((id(scenario), key))
+    if hit is None or hit[0] is not scenario:
+        return None
+    _CACHE.move_to_end((id(scenario), key))
+    return hit[1]
+
+
+def _cache_put(scenario: Scenario, key: tuple, entry: tuple) -> None:
+    _CACHE[(id(scenario), key)] = (scenario, entry)
+    while len(_CACHE) > _CACHE_SIZE:
+        _CACHE.popitem(last=False)
+
+
+def clear_cache() -> None:
+    """Drop every cached NLP / IPOPT instance."""
+    _CACHE.clear()
+
+
 # ------------------------------------------------------------------ main
 def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, max_iter: int | None = None,
           tol: float = 1e-4, solver_options: dict | None = None, time_limit: float | None = None,
           keep_iterates: bool = False, progress: bool = False, formulation: str = "cholesky",
           regularisation: float = 1e-4, margin: float = 1e-6, restarts: int = 1, stall: int = 300,
-          candidates: int = 5) -> SmoothResult:
+          candidates: int = 5, cache: bool = True) -> SmoothResult:
     """Solve the smoothing problem with IPOPT from a warm start (see module doc).
 
     Use :func:`belief_nlp.smooth` with ``method="ipopt"``. Method options:
@@ -557,6 +619,10 @@ def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, m
     stall : with restarts, stop an attempt at a feasible iterate once no
         feasible iterate has lowered the cost for this many iterations (300).
     candidates : feasible IPOPT iterates kept for the fallback (5).
+    cache : reuse the NLP and IPOPT instance built by an earlier call with the
+        same scenario object, K, alpha, formulation and options (default
+        True). Building them takes ~0.4 s at K = 20 (CasADi's symbolic
+        Hessian); ``SmoothResult.timings["setup"]`` shows what a call paid.
 
     ``max_iter`` is IPOPT's total iteration limit (None: 3000); ``tol`` IPOPT's
     tolerance on its scaled KKT error; ``solver_options`` are IPOPT options
@@ -581,21 +647,29 @@ def ipopt(scenario: Scenario, start: WarmStart, *, alpha: float | None = None, m
     margin0 = _exact_margin(model, z0, hazards)
     cost0, ctrl0, info0 = model.cost(z0)
 
-    nlp = build_nlp(model, formulation, margin=margin, regularisation=regularisation)
+    opts = _ipopt_options(solver_options, max_iter, tol)
+    max_iter = int(opts["max_iter"])
+    key = (K, D.alpha, formulation, float(margin), float(regularisation), repr(sorted(opts.items())))
+    entry = _cache_get(scenario, key) if cache else None
+    if entry is None:
+        nlp = build_nlp(model, formulation, margin=margin, regularisation=regularisation)
+        recorder = _Recorder(nlp, D.alpha, keep=max(int(candidates), 0), bar=None, stall=0)
+        try:
+            solver = ca.nlpsol("belief_nlp_ipopt", "ipopt", {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
+                               {"ipopt": opts, "print_time": False, "iteration_callback": recorder,
+                                "error_on_fail": False, "show_eval_warnings": False})
+        except RuntimeError as exc:  # bad option names or values
+            raise SolverError(f"IPOPT could not be set up: {exc}") from None
+        if cache:
+            _cache_put(scenario, key, (nlp, solver, recorder))
+    else:
+        nlp, solver, recorder = entry
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=max_iter, desc="IPOPT", unit="it")
-    recorder = _Recorder(nlp, D.alpha, keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0)
-    opts = _ipopt_options(solver_options, max_iter, tol)
-    max_iter = int(opts["max_iter"])
-    try:
-        solver = ca.nlpsol("belief_nlp_ipopt", "ipopt", {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
-                           {"ipopt": opts, "print_time": False, "iteration_callback": recorder,
-                            "error_on_fail": False, "show_eval_warnings": False})
-    except RuntimeError as exc:  # bad option names or values
-        raise SolverError(f"IPOPT could not be set up: {exc}") from None
+    recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0)
     setup_time = time.perf_counter() - t_start
 
     # attempts: the first gets half the budget when a restart may follow
