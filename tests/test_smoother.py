@@ -107,21 +107,28 @@ def test_target_containment_uses_the_corrected_sign(paper_run):
     assert np.max(viol) < 1e-9
 
 
-def test_current_point_is_feasible_for_its_subproblem(paper_run):
-    """CCP's premise: the linearisation point is feasible for the convex subproblem."""
-    sc, path, _ = paper_run
+def _first_subproblem(sc, path, alpha):
+    """The first CCP subproblem at the warm start of ``path``, as ccp() builds it;
+    returns (subproblem, data, point, objective function of the conic data)."""
     ws = bn.warm_start(sc, path)
-    model = BeliefModel(sc, ws.K, 1.0)
+    model = BeliefModel(sc, ws.K, alpha)
     z = model.tighten(model.from_path(ws.path, ws.lam))
     sub = ConicSubproblem(model.data)
     rho = initial_rho(model, z)
-    data = sub.build(z, rho, rho, model.logdet_gradients(z), model.bilinear_gradients(z, False), model.bilinear_gradients(z, True))
+    data = sub.build(z, rho, rho, model.logdet_gradients(z), model.bilinear_gradients(z, False),
+                     model.bilinear_gradients(z, True))
+    Pfull = (data.P + data.P.T).toarray() - np.diag(data.P.diagonal())
+    return sub, data, z, lambda v: 0.5 * v @ Pfull @ v + data.q @ v
+
+
+def test_current_point_is_feasible_for_its_subproblem(paper_run):
+    """CCP's premise: the linearisation point is feasible for the convex subproblem."""
+    sc, path, _ = paper_run
+    sub, data, z, f = _first_subproblem(sc, path, 1.0)
     assert np.max(data.slack_violations(sub.point_vector(z))) < 1e-9
     # and Clarabel's subproblem optimum is at least as good as the current point
     status, sol, _, _ = _ClarabelRunner({}).solve(data)
     assert status == "Solved"
-    Pfull = (data.P + data.P.T).toarray() - np.diag(data.P.diagonal())
-    f = lambda v: 0.5 * v @ Pfull @ v + data.q @ v
     assert f(sol) <= f(sub.point_vector(z)) + 1e-8
 
 
@@ -129,18 +136,11 @@ def test_direct_clarabel_agrees_with_cvxpy_on_a_subproblem():
     """The directly assembled data solved by our Clarabel driver and by CVXPY
     (a second, independent canonicalisation and solver call) agree."""
     sc, path = paper_multi_path_pair(steps_per_segment=2)
-    ws = bn.warm_start(sc, path)
-    model = BeliefModel(sc, ws.K, 0.1)
-    z = model.tighten(model.from_path(ws.path, ws.lam))
-    sub = ConicSubproblem(model.data)
-    rho = initial_rho(model, z)
-    data = sub.build(z, rho, rho, model.logdet_gradients(z), model.bilinear_gradients(z, False), model.bilinear_gradients(z, True))
+    _, data, _, obj = _first_subproblem(sc, path, 0.1)
     s1, x1, _, _ = _ClarabelRunner({}).solve(data)
     # same Clarabel setting as our driver (equilibration off, see ccp.py)
     s2, x2, _, _ = _cvxpy_solve(data, "CLARABEL", {"equilibrate_enable": False})
     assert s1 == "Solved" and s2 == "Solved"
-    Pfull = (data.P + data.P.T).toarray() - np.diag(data.P.diagonal())
-    obj = lambda v: 0.5 * v @ Pfull @ v + data.q @ v
     assert obj(x1) == pytest.approx(obj(x2), rel=1e-5, abs=1e-7)
 
 
