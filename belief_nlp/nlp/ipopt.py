@@ -34,30 +34,36 @@ reports success, the path passes verify, cost within 1 % of CCP's converged
 value or lower": set A, 24 runs (the hand path of tests/conftest.py at K = 20
 and 40, ten per-step IG-RRT* plans at one step per edge, K = 7..12); set B,
 38 runs (IG-RRT* seeds 10-19 planned at alpha = 0.1 and 1.0, K = 3..20).
-Each line changes one thing against the final settings.
+Each line changes one thing against the defaults (this module's code; the
+last block was measured on its prototype, set A only).
 
-=====================================================  ==========  ==========
-variant                                                set A       set B
-=====================================================  ==========  ==========
-final (below), without restarts                       24/24       37/38
-final, with one restart (default)                      62/62 (A and B together)
-IPOPT defaults + Cholesky S, Q eliminated              ~9/24 (hand path: restoration failure
-                                                       / infeasible, as numerics.md reports)
-Q eliminated by the Kalman recursion (single shooting) 22/24, 4x slower per iteration
-  (``formulation="eliminated"``)
-S by principal minors (``formulation="minors"``)       23/24       --, ~1.5x slower
-relaxed Kalman inequality by minors instead of =       0/24
-no proximal term on lam (eps = 0)                      20/24
-eps = 1e-5 .. 1e-7                                     20-22/24
-eps = 1e-3 / 1e-2 (cost bias 0.1-0.4 % / ~1 %)         23/24 / 12/24
-monotone mu (IPOPT default)                            21/24       --, 2x slower
-bound_push = bound_frac = 1e-2 (IPOPT default)         24/24       34/38
+=====================================================  ===========  ===========
+variant                                                set A        set B
+=====================================================  ===========  ===========
+defaults                                               24/24        38/38
+                                                       median 192 / 260 iterations
+no restart (``restarts=0``)                            24/24        37/38 (crept to
+                                                                    the 3000 limit)
+no proximal term (``regularisation=0``)                22/24        37/38
+``regularisation=1e-3`` (cost bias 0.1-0.4 %)          24/24        38/38
+S by principal minors (``formulation="minors"``)       24/24        36/38
+Q eliminated by the recursion (``"eliminated"``)       24/24, 5x    37/38, 2.5x
+                                                       slower       slower
+monotone mu (IPOPT's default)                          23/24        35/38
+bound_push = bound_frac = 1e-2 (IPOPT's default)       24/24        37/38
+IPOPT defaults (monotone mu, bound push 1e-2,          3/24, median 1210 iterations
+tol 1e-8, constr_viol_tol 1e-4), no proximal term,
+no restart
+the same with Q eliminated (numerics.md's setting)     0 of the first 7 (20-90 s each;
+                                                       stopped)
+-----------------------------------------------------  ------------------------
+relaxed Kalman inequality (by minors) instead of =     0/24
 lengths in metres instead of sigma units               21/24
 start lam at the margin-maximising lambda*             11/24
 limited-memory Hessian (L-BFGS)                        1/24
 exp-parameterised diagonal of M (instead of bounds)    20/24
-L with a positive diagonal (bounds)                    22/24       33/38, fewer iterations
-=====================================================  ==========  ==========
+L with a positive diagonal (bounds)                    22/24
+=====================================================  ========================
 
 Why these work:
 
