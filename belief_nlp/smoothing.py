@@ -16,8 +16,8 @@ METHODS = ("ccp", "ipopt")
 
 
 def _validate(max_iter: Any, tol: Any, alpha: Any, time_limit: Any) -> None:
-    if not isinstance(max_iter, int) or isinstance(max_iter, bool) or max_iter < 1:
-        raise ValidationError("max_iter", f"must be a positive integer, got {max_iter!r}")
+    if max_iter is not None and (not isinstance(max_iter, int) or isinstance(max_iter, bool) or max_iter < 1):
+        raise ValidationError("max_iter", f"must be None or a positive integer, got {max_iter!r}")
     if not isinstance(tol, (int, float)) or not tol > 0:
         raise ValidationError("tol", f"must be a number > 0, got {tol!r}")
     if alpha is not None and (not isinstance(alpha, (int, float)) or alpha < 0):
@@ -27,7 +27,7 @@ def _validate(max_iter: Any, tol: Any, alpha: Any, time_limit: Any) -> None:
 
 
 def smooth(scenario: Scenario | str, path: BeliefPath | WarmStart, method: str = "ccp", K: int | None = None,
-           max_iter: int = 50, tol: float = 1e-4, solver: str = "CLARABEL", alpha: float | None = None, *,
+           max_iter: int | None = None, tol: float = 1e-4, solver: str = "CLARABEL", alpha: float | None = None, *,
            time_limit: float | None = None, solver_options: dict | None = None,
            keep_iterates: bool = False, progress: bool = False, sensing: str = "minimal",
            **method_options: Any) -> SmoothResult:
@@ -41,8 +41,9 @@ def smooth(scenario: Scenario | str, path: BeliefPath | WarmStart, method: str =
     method : "ccp" (convex-concave procedure, paper section IV) or "ipopt"
         (the same model solved by IPOPT through CasADi).
     K : horizon; None = one step per path edge (see :func:`warm_start`).
-    max_iter : iteration limit (the paper runs 15 CCP iterations; converged
-        answers typically need 25-45).
+    max_iter : iteration limit; None = the method's own default (CCP 50,
+        IPOPT 3000 -- IPOPT typically needs 200-600 iterations). The paper
+        runs 15 CCP iterations; converged CCP answers need 25-45.
     tol : stop when the relative cost decrease of an iteration is below tol.
     solver : conic solver of the CCP subproblems: "CLARABEL" (default; data
         assembled directly and updated in place) or any other conic solver
@@ -73,7 +74,7 @@ def smooth(scenario: Scenario | str, path: BeliefPath | WarmStart, method: str =
     if method == "ccp":
         from .nlp.ccp import ccp
 
-        return ccp(scenario, start, alpha=alpha, max_iter=max_iter, tol=tol, solver=solver,
+        return ccp(scenario, start, alpha=alpha, max_iter=50 if max_iter is None else max_iter, tol=tol, solver=solver,
                    solver_options=solver_options, time_limit=time_limit, keep_iterates=keep_iterates,
                    progress=progress, **method_options)
     from .nlp.ipopt import ipopt  # noqa: PLC0415 - optional heavy import
