@@ -1,6 +1,6 @@
 """Exact safety geometry (belief_nlp.geometry) against brute force and the paper.
 
-The oracles below share no code with geometry.py: distances are computed in
+The oracles below share no code with the geometry package: distances are computed in
 whitened coordinates (y' = L^-1 y with P = L L^T, so the Mahalanobis distance
 becomes Euclidean and the polytope stays convex) as plain point-to-segment /
 point-to-triangle distances, or by dense sampling with a rigorous error bound.
