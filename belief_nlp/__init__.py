@@ -1,7 +1,8 @@
 """belief_nlp: minimum-sensing path planning in Gaussian belief space.
 
-Plan with IG-RRT*, smooth with the convex-concave procedure (or IPOPT), and
-verify every path independently. See README.md for a tour.
+Plan with IG-RRT*, smooth with any registered method (the convex-concave
+procedure, IPOPT, or yours) on one symbolic model, and verify every path
+independently. See README.md for a tour and docs/architecture.md for the map.
 """
 
 from __future__ import annotations
@@ -13,9 +14,10 @@ from .path import BeliefPath
 from .polytope import Polytope
 from .scenario import Scenario, list_scenarios, load_scenario, save_scenario, scenario_from_dict
 from .verify import VerificationReport, verify
-from .nlp.result import IterationRecord, SmoothResult
-from .nlp.warmstart import WarmStart, warm_start
-from .smoothing import smooth
+from .smoother import (STATUSES, IterationRecord, Method, Option, Outcome, SmoothResult, SmoothingProblem,
+                       WarmStart, available_methods, get_method, smooth, warm_start)
+from .smoother import register as register_method
+from .methods.ccp import ccp_subproblem
 from .planner import IGRRTStar, PlanResult, plan
 from .compare import compare, records_to_table
 
@@ -34,6 +36,15 @@ __version__ = "0.1.0"
 
 __all__ = [
     "BeliefNLPError",
+    "Method",
+    "Option",
+    "Outcome",
+    "STATUSES",
+    "SmoothingProblem",
+    "available_methods",
+    "ccp_subproblem",
+    "get_method",
+    "register_method",
     "BeliefPath",
     "IGRRTStar",
     "InfeasibleStartError",

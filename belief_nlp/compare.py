@@ -1,7 +1,7 @@
 """Compare smoothing methods on one path, from one warm start.
 
 ``compare(scenario, path)`` builds the warm start once (:func:`warm_start`),
-hands the same :class:`~belief_nlp.nlp.warmstart.WarmStart` to
+hands the same :class:`~belief_nlp.smoother.warmstart.WarmStart` to
 :func:`belief_nlp.smooth` for every method and returns one flat record (a
 dict) per method, ready for a table, a JSON file or a DataFrame. A method
 that raises a :class:`~belief_nlp.errors.BeliefNLPError` gives a record with
@@ -33,15 +33,12 @@ from dataclasses import asdict
 from typing import Any, Iterable, Mapping
 
 from .errors import BeliefNLPError, ValidationError
-from .nlp.warmstart import WarmStart, warm_start
+from .smoother.registry import available_methods, resolve_method
+from .smoother.warmstart import WarmStart, warm_start
 from .path import BeliefPath
 from .scenario import Scenario, load_scenario
 
-__all__ = ["compare", "records_to_table", "compact", "DEFAULT_MAX_ITER", "RECORD_KEYS"]
-
-#: Iteration limits when ``max_iter`` is not given: CCP iterations are convex
-#: solves (25-45 to converge on paper-multi), IPOPT's are Newton steps.
-DEFAULT_MAX_ITER = {"ccp": 100, "ipopt": 3000}
+__all__ = ["compare", "records_to_table", "compact", "RECORD_KEYS"]
 
 RECORD_KEYS = ("method", "status", "success", "message", "cost", "control", "information", "initial_cost",
                "iterations", "wall_time", "solver_time", "setup_time", "safe", "worst_margin", "worst", "alpha",
@@ -54,6 +51,11 @@ def _per_method(value: Any, method: str, default: Any = None) -> Any:
     return default if value is None else value
 
 
+def _name(spec: Any) -> str:
+    """A method's name for a record, before it is resolved."""
+    return spec if isinstance(spec, str) else getattr(spec, "name", getattr(spec, "__name__", "custom"))
+
+
 def _error_record(method: str, message: str, base: dict) -> dict:
     rec = {k: None for k in RECORD_KEYS}
     rec.update(base)
@@ -64,7 +66,7 @@ def _error_record(method: str, message: str, base: dict) -> dict:
     return rec
 
 
-def compare(scenario: Scenario | str, path: BeliefPath | WarmStart, methods: Iterable[str] = ("ccp", "ipopt"), *,
+def compare(scenario: Scenario | str, path: BeliefPath | WarmStart, methods: Iterable[Any] | None = None, *,
             K: int | None = None, max_iter: int | Mapping[str, int] | None = None,
             method_options: Mapping[str, Mapping[str, Any]] | None = None, sensing: str = "minimal",
             **common_options: Any) -> list[dict]:
@@ -75,9 +77,10 @@ def compare(scenario: Scenario | str, path: BeliefPath | WarmStart, methods: Ite
     scenario : Scenario or built-in name / file.
     path : a feasible BeliefPath (the warm start is built once, with ``K`` and
         ``sensing`` as in :func:`belief_nlp.warm_start`), or a WarmStart.
-    methods : smoothing methods, any of ``belief_nlp.smoothing.METHODS``.
-    max_iter : one limit for all, a dict per method, or None for
-        :data:`DEFAULT_MAX_ITER` (CCP 100, IPOPT 3000).
+    methods : smoothing methods (names from :func:`available_methods`,
+        registered Methods or callables); None = every registered method.
+    max_iter : one limit for all, a dict per method name, or None for each
+        method's own default (the same as :func:`smooth`'s).
     method_options : per-method keywords for ``smooth``, e.g.
         ``{"ipopt": {"formulation": "minors", "solver_options": {...}}}``.
     **common_options : keywords for every ``smooth`` call (``alpha``, ``tol``,
@@ -88,11 +91,12 @@ def compare(scenario: Scenario | str, path: BeliefPath | WarmStart, methods: Ite
     list of dict, one per method, in ``methods`` order (keys: :data:`RECORD_KEYS`,
     described in the module docstring).
     """
-    from .smoothing import smooth
+    from .smoother.driver import _path, smooth
 
     if isinstance(scenario, str):
         scenario = load_scenario(scenario)
-    methods = list(methods)
+    path = _path(path)
+    methods = list(available_methods() if methods is None else methods)
     if not methods:
         raise ValidationError("methods", "give at least one method")
     alpha = common_options.get("alpha")
@@ -109,18 +113,24 @@ def compare(scenario: Scenario | str, path: BeliefPath | WarmStart, methods: Ite
             start = warm_start(scenario, path, K=K, sensing=sensing)
         except BeliefNLPError as exc:
             msg = f"warm start failed: {exc}"
-            return [_error_record(m, msg, base) for m in methods]
+            return [_error_record(_name(m), msg, base) for m in methods]
     base["warm_start_time"] = 0.0 if start is path else time.perf_counter() - t0
     base["K"] = start.K
 
     records = []
-    for method in methods:
+    for spec in methods:
+        method = _name(spec)
+        try:
+            m = resolve_method(spec)
+        except BeliefNLPError as exc:
+            records.append(_error_record(method, f"{type(exc).__name__}: {exc}", base))
+            continue
         opts = dict(common_options)
         opts.update(dict(_per_method(method_options, method, {}) or {}))
-        limit = _per_method(max_iter, method, DEFAULT_MAX_ITER.get(method, 100))
+        limit = _per_method(max_iter, method, None)
         t = time.perf_counter()
         try:
-            res = smooth(scenario, start, method=method, max_iter=limit, **opts)
+            res = smooth(scenario, start, method=m, max_iter=limit, **opts)
         except BeliefNLPError as exc:
             records.append(_error_record(method, f"{type(exc).__name__}: {exc}", base))
             continue

@@ -316,7 +316,7 @@ _DEMO_VIA = np.array([[0.1, 0.2], [0.5, 0.4], [0.9, 0.2]])
 
 def _reference(sc: Scenario, reference, steps: int, seed: int) -> np.ndarray:
     """Time-indexed reference means r_0..r_steps (metres)."""
-    from .nlp.warmstart import resample_means
+    from .smoother.warmstart import resample_means
 
     if reference is None:
         if sc.name == "mpc-demo":
@@ -381,7 +381,7 @@ class _MPCStage:
         # tiny proximal term on the certificates (flat directions, see nlp/ipopt.py)
         cost += 1e-4 * sum(ca.sumsqr(lam - lr) for lam, lr in zip(self.lams, self.lam_ref))
         opti.minimize(cost)
-        from .nlp.ipopt import DEFAULT_IPOPT_OPTIONS
+        from .methods.ipopt import DEFAULT_IPOPT_OPTIONS
 
         opts = dict(DEFAULT_IPOPT_OPTIONS)
         opts.update(max_iter=1000, tol=1e-6)
@@ -523,8 +523,8 @@ def _initial_guess(sc: Scenario, ref: np.ndarray, sigma: float) -> tuple[np.ndar
     start for the first MPC solve (later solves start from the shifted plan).
     Smallest valid certificates start IPOPT better than the margin-maximising
     ones (see nlp/ipopt.py)."""
-    from .nlp.ipopt import _psd_factor
-    from .nlp.warmstart import warm_start
+    from .model.nlp_form import _psd_factor
+    from .smoother.warmstart import warm_start
 
     d = sc.dim
     K = ref.shape[0] - 1

@@ -181,8 +181,8 @@ def test_smooth_plans_first_without_a_path(tmp_path, capsys):
         assert_one_line_error(err)
 
 
-@pytest.mark.skipif(importlib.util.find_spec("belief_nlp.nlp.ipopt") is None,
-                    reason="belief_nlp.nlp.ipopt (the IPOPT method) is not in this tree yet")
+@pytest.mark.skipif(importlib.util.find_spec("belief_nlp.methods.ipopt") is None,
+                    reason="belief_nlp.methods.ipopt (the IPOPT method) is not in this tree yet")
 def test_smooth_with_ipopt(tmp_path, hand_path_file, capsys):
     code, out, err = run(["smooth", "paper-multi", "--path", hand_path_file, "--method", "ipopt",
                           "--max-iter", 200, "-q", "--out", tmp_path], capsys)

@@ -1,4 +1,4 @@
-"""IPOPT baseline (belief_nlp.nlp.ipopt through smooth(method="ipopt"))."""
+"""IPOPT (belief_nlp.methods.ipopt through smooth(method="ipopt"))."""
 
 from __future__ import annotations
 
@@ -8,8 +8,9 @@ import pytest
 
 import belief_nlp as bn
 from belief_nlp.errors import SolverError, ValidationError
-from belief_nlp.nlp.ipopt import FORMULATIONS, build_nlp, map_status
-from belief_nlp.nlp.model import BeliefModel
+from belief_nlp.methods.ipopt import map_status
+from belief_nlp.model import BeliefModel
+from belief_nlp.model.nlp_form import FORMULATIONS, build_nlp
 
 from conftest import paper_multi_path_pair
 
@@ -129,7 +130,7 @@ def test_solver_options_pass_through(hand_start):
     # an IPOPT option (prefixed or not) reaches IPOPT: its own iteration limit
     res = bn.smooth(sc, ws, method="ipopt", max_iter=3000, solver_options={"ipopt.max_iter": 4}, restarts=0)
     assert res.status == "max_iter" and res.nit == 4
-    with pytest.raises(SolverError, match="bogus"):
+    with pytest.raises(ValidationError, match="bogus"):
         bn.smooth(sc, ws, method="ipopt", solver_options={"bogus_option": 1})
 
 
@@ -146,19 +147,20 @@ def test_bad_method_options(small_start):
 def test_keep_iterates(small_start):
     sc, ws = small_start
     res = bn.smooth(sc, ws, method="ipopt", max_iter=3000, keep_iterates=True)
-    assert res.iterates is not None and len(res.iterates) == len(res.history)
-    assert all(isinstance(p, bn.BeliefPath) and p.K == ws.K for p in res.iterates)
+    # the warm start, then every accepted iterate that passed the exact check
+    assert res.iterates is not None and len(res.iterates) >= 2
+    assert all(isinstance(p, bn.BeliefPath) and p.K == ws.K and bn.verify(sc, p).safe for p in res.iterates)
 
 
 def test_cache_reuses_the_solver(small_start):
     sc, ws = small_start
-    from belief_nlp.nlp.ipopt import clear_cache
+    from belief_nlp.methods.ipopt import clear_cache
 
     clear_cache()
     first = bn.smooth(sc, ws, method="ipopt", max_iter=3000, alpha=0.5)
     again = bn.smooth(sc, ws, method="ipopt", max_iter=3000, alpha=0.5)
     fresh = bn.smooth(sc, ws, method="ipopt", max_iter=3000, alpha=0.5, cache=False)
-    assert again.timings["setup"] < 0.5 * first.timings["setup"]
+    assert first.stats["build"] == "built" and again.stats["build"] == "memory" and fresh.stats["build"] == "built"
     assert again.cost == first.cost == fresh.cost and again.nit == first.nit
     assert len(again.history) == len(first.history)          # the recorder starts afresh
 

@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
+import casadi as ca
 import numpy as np
 import pytest
 
 import belief_nlp as bn
 from belief_nlp.errors import InfeasibleStartError, ValidationError
 from belief_nlp.geometry import PolytopeSet, transition_clearances
-from belief_nlp.nlp.ccp import _ClarabelRunner, _cvxpy_solve, initial_rho
-from belief_nlp.nlp.conic import ConicSubproblem
-from belief_nlp.nlp.model import BeliefModel
+from belief_nlp.methods.ccp import _solve, compiled_step, initial_rho
+from belief_nlp.model import BeliefModel, terms
+from belief_nlp.model.doc import tangent
 
 from conftest import densify, paper_multi_path_pair
 
@@ -94,54 +95,55 @@ def test_target_containment_uses_the_corrected_sign(paper_run):
         printed = np.array([[-s_n, 1.0], [1.0, gamma * c_n]])
         assert np.linalg.eigvalsh(corrected)[0] >= -1e-9
         assert np.linalg.eigvalsh(printed)[0] < 0
-    # and the conic subproblem encodes y = b - a^T x_K: its target SOC rows at
-    # the current point are ((y + gamma C)/sqrt2, sqrt2, (y - gamma C)/sqrt2)
+    # and the CCP step's target cones are exactly this matrix at the current point
     model = BeliefModel(sc, p.K, res.alpha)
     ws = bn.warm_start(sc, p)
     z = model.tighten(model.from_path(ws.path, ws.lam))
-    sub = ConicSubproblem(model.data)
+    form = model.convex_form
     one = np.ones((p.K, model.data.J))
-    data = sub.build(z, one, one, model.logdet_gradients(z), model.bilinear_gradients(z, False),
-                     model.bilinear_gradients(z, True))
-    viol = data.slack_violations(sub.point_vector(z))
-    assert np.max(viol) < 1e-9
+    fam = next(f for f in form.families if f.name == "target_face")
+    e = np.asarray(ca.Function("e", [form.z, form.p], [fam.expr])(form.layout.point_vector(z),
+                                                                   form.layout.params(z, one, one)))
+    M = e.reshape(fam.batch, 2, 2)
+    y = (T.b - T.A @ ws.path.x[-1]) / model.data.sigma
+    np.testing.assert_allclose(M[:, 0, 0], y, rtol=1e-9)
+    assert np.min(np.linalg.eigvalsh(M)) >= -1e-9
 
 
-def _first_subproblem(sc, path, alpha):
-    """The first CCP subproblem at the warm start of ``path``, as ccp() builds it;
-    returns (subproblem, data, point, objective function of the conic data)."""
+def _first_step(sc, path, alpha):
+    """The first CCP step at the warm start of ``path``, as the method builds
+    it; returns (compiled step, point, objective of the convex form at z)."""
     ws = bn.warm_start(sc, path)
     model = BeliefModel(sc, ws.K, alpha)
     z = model.tighten(model.from_path(ws.path, ws.lam))
-    sub = ConicSubproblem(model.data)
+    step, _, _ = compiled_step(model)
     rho = initial_rho(model, z)
-    data = sub.build(z, rho, rho, model.logdet_gradients(z), model.bilinear_gradients(z, False),
-                     model.bilinear_gradients(z, True))
-    Pfull = (data.P + data.P.T).toarray() - np.diag(data.P.diagonal())
-    return sub, data, z, lambda v: 0.5 * v @ Pfull @ v + data.q @ v
+    step.set_point(z, rho, rho)
+    form = model.convex_form
+    f = ca.Function("f", [form.z, form.p], [form.objective])
+    pv = form.layout.params(z, rho, rho)
+    return step, model, z, lambda v: float(f(v, pv))
 
 
 def test_current_point_is_feasible_for_its_subproblem(paper_run):
-    """CCP's premise: the linearisation point is feasible for the convex subproblem."""
+    """CCP's premise: the linearisation point is feasible for the convex step
+    (test_model checks every cone), so the step's optimum is no worse."""
     sc, path, _ = paper_run
-    sub, data, z, f = _first_subproblem(sc, path, 1.0)
-    assert np.max(data.slack_violations(sub.point_vector(z))) < 1e-9
-    # and Clarabel's subproblem optimum is at least as good as the current point
-    status, sol, _, _ = _ClarabelRunner({}).solve(data)
-    assert status == "Solved"
-    assert f(sol) <= f(sub.point_vector(z)) + 1e-8
+    step, model, z, f = _first_step(sc, path, 1.0)
+    status, sol, _, _ = _solve(step, "CLARABEL", {}, retry=False)
+    assert status == "optimal"
+    assert f(sol) <= f(step.layout.point_vector(z)) + 1e-8
 
 
-def test_direct_clarabel_agrees_with_cvxpy_on_a_subproblem():
-    """The directly assembled data solved by our Clarabel driver and by CVXPY
-    (a second, independent canonicalisation and solver call) agree."""
-    sc, path = paper_multi_path_pair(steps_per_segment=2)
-    _, data, _, obj = _first_subproblem(sc, path, 0.1)
-    s1, x1, _, _ = _ClarabelRunner({}).solve(data)
-    # same Clarabel setting as our driver (equilibration off, see ccp.py)
-    s2, x2, _, _ = _cvxpy_solve(data, "CLARABEL", {"equilibrate_enable": False})
-    assert s1 == "Solved" and s2 == "Solved"
-    assert obj(x1) == pytest.approx(obj(x2), rel=1e-5, abs=1e-7)
+def test_a_second_conic_solver_agrees_on_a_step():
+    """The same compiled CVXPY step solved by Clarabel and by SCS (another
+    algorithm, first-order) reaches the same optimum."""
+    sc, path = paper_multi_path_pair(steps_per_segment=1)
+    step, model, z, obj = _first_step(sc, path, 0.1)
+    s1, x1, _, _ = _solve(step, "CLARABEL", {}, retry=False)
+    s2, x2, _, _ = _solve(step, "SCS", {"eps_abs": 1e-7, "eps_rel": 1e-7, "max_iters": 200_000}, retry=False)
+    assert s1 == "optimal" and s2 in ("optimal", "optimal_inaccurate")
+    assert obj(x1) == pytest.approx(obj(x2), rel=1e-3, abs=1e-5)
 
 
 def test_path_through_an_obstacle_is_refused_with_the_transition_named():
@@ -202,15 +204,21 @@ def test_bad_options_are_named(kwargs, field):
 
 
 def test_casadi_linearisation_matches_the_analytic_gradients():
-    """The CCP linearisation comes from the CasADi model: grad of log det Y is
-    Y^-1, grad of 2 lam^T (A x - b) is (2 (A x - b), 2 A^T lam)."""
-    sc, path = paper_multi_path_pair(steps_per_segment=1)
-    ws = bn.warm_start(sc, path)
-    model = BeliefModel(sc, ws.K, 0.1)
-    z = model.tighten(model.from_path(ws.path, ws.lam))
-    assert np.allclose(model.logdet_gradients(z), np.linalg.inv(z.Y[1:]), rtol=1e-10)
-    D = model.data
-    g_lam, g_x = model.bilinear_gradients(z, end=True)
-    expect_lam = 2 * (np.einsum("jfd,kd->kjf", D.A, z.x[1:]) - D.b[None])
-    assert np.allclose(g_lam, expect_lam, rtol=1e-12, atol=1e-9)
-    assert np.allclose(g_x, 2 * np.einsum("jfd,kjf->kjd", D.A, z.lam), rtol=1e-12, atol=1e-9)
+    """CCP's tangents come from CasADi: the tangent of log det at Yt is
+    log det Yt + tr(Yt^-1 (Y - Yt)); of h = 2 lam^T (A x - b) at (lt, xt) it is
+    2 lam^T (A xt - b) + 2 (A^T lt)^T (x - xt)."""
+    rng = np.random.default_rng(0)
+    d = 2
+    Ys = ca.SX.sym("Y", d, d)
+    f = tangent(ca.Function("logdet", [Ys], [terms.logdet(Ys)]))
+    G = rng.normal(size=(d, d))
+    Yt, Y = G @ G.T + np.eye(d), np.eye(d) * 2.0
+    ref = np.linalg.slogdet(Yt)[1] + np.trace(np.linalg.solve(Yt, Y - Yt))
+    assert float(f(Yt, Y)) == pytest.approx(ref, rel=1e-12)
+    F = 3
+    ls, xs, As, bs = ca.SX.sym("l", F), ca.SX.sym("x", d), ca.SX.sym("A", F, d), ca.SX.sym("b", F)
+    g = tangent(ca.Function("h", [ls, xs, As, bs], [terms.bilinear(ls, xs, As, bs)]), 2)
+    A, b = rng.normal(size=(F, d)), rng.normal(size=F)
+    lt, xt, lam, x = rng.random(F), rng.normal(size=d), rng.random(F), rng.normal(size=d)
+    ref = 2 * lam @ (A @ xt - b) + 2 * (A.T @ lt) @ (x - xt)
+    assert float(g(lt, xt, lam, x, A, b)) == pytest.approx(ref, rel=1e-12)

@@ -14,7 +14,8 @@ from ..path import BeliefPath
 
 __all__ = ["IterationRecord", "SmoothResult", "STATUSES"]
 
-# Status strings, in one place. ``success`` is True only for "converged".
+# Status strings, in one place, shared by every method. ``success`` is True
+# only for "converged", and never for an answer above the warm start.
 STATUSES = {
     "converged": "relative cost decrease fell below tol",
     "max_iter": "iteration limit reached (every iterate is feasible; not converged)",
@@ -22,13 +23,33 @@ STATUSES = {
     "solver_failed": "a subproblem failed twice (best feasible iterate returned)",
     "non_monotone": "a step would have increased the cost beyond tolerance (rejected; best iterate returned)",
     "infeasible_iterate": "a solver answer failed the exact safety check (rejected; best iterate returned)",
-    "ipopt_failed": "IPOPT did not reach an acceptable point (best feasible point returned)",
+    "ipopt_failed": "the NLP solver did not reach an acceptable point (best feasible point returned)",
+    "above_start": "the method's answer cost more than the warm start (the warm start is returned)",
+    "stopped": "stopped by the callback (best feasible iterate returned)",
 }
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Structural equality of JSON-like data with NaN == NaN."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, float) and isinstance(b, float) and a != a and b != b:
+        return True
+    return a == b
 
 
 @dataclass
 class IterationRecord:
-    """One iteration of a smoother (iteration 0 is the warm start)."""
+    """One iteration of a smoothing method (iteration 0 is the warm start).
+
+    The fields mean the same for every method: ``cost`` and its parts are the
+    paper's objective at the iterate (SI units, nats); ``accepted`` is True when
+    the iterate passed the method's feasibility test and may become the
+    answer; ``min_margin`` is the smallest constraint margin the method
+    measured (the exact clearance minus chi2 where the method checks exactly).
+    """
 
     iteration: int
     cost: float
@@ -39,7 +60,7 @@ class IterationRecord:
     build_time: float = 0.0          # assembling / updating the subproblem, s
     wall_time: float = 0.0           # whole iteration, s
     solver_iterations: int = 0
-    accepted: bool = True
+    accepted: bool = True            # exactly safe by the method's own check: a candidate answer
     min_margin: float = float("nan")
     kalman_gap: float = float("nan")  # max rel. gap of the solver's Q_k to the Kalman recursion (Lemma 2)
 
@@ -64,6 +85,9 @@ class SmoothResult:
     timings : {"setup", "total", "solver"} seconds.
     verification : ``verify(scenario, path).to_dict()`` of the returned path.
     initial_cost : cost of the warm start.
+    iterates : with ``keep_iterates``, the path of every accepted iterate
+        (the warm start first).
+    stats : the solver's raw statistics (return status, iterations, times).
     """
 
     path: BeliefPath
@@ -82,6 +106,7 @@ class SmoothResult:
     verification: dict = field(default_factory=dict)
     initial_cost: float = float("nan")
     iterates: list[BeliefPath] | None = field(default=None, repr=False)
+    stats: dict = field(default_factory=dict)
 
     @property
     def x(self) -> np.ndarray:
@@ -117,9 +142,11 @@ class SmoothResult:
         return cls(**data)
 
     def __eq__(self, other: object) -> bool:
+        """Equal content, NaN equal to NaN (results reload equal)."""
         if not isinstance(other, SmoothResult):
             return NotImplemented
-        return self.to_dict() == other.to_dict()
+        return _same(json.loads(json.dumps(self.to_dict(), default=float)),
+                     json.loads(json.dumps(other.to_dict(), default=float)))
 
     def __repr__(self) -> str:
         return (f"SmoothResult(method={self.method!r}, status={self.status!r}, cost={self.cost:.6g}, "

@@ -1,0 +1,98 @@
+"""Scenario data and points of the model, in the model's scaled units.
+
+Units (docs/numerics.md, "Scaling"): every length is divided by
+sigma = sqrt(max eig W), so x' = x / sigma, P' = P / sigma^2, W' = W / sigma^2
+(~ I), Q' = sigma^2 Q and a certificate scales as lam' = sigma lam. The cost
+sum ||dx||^2 + alpha/2 sum (log det Y_k - log det Q_k) becomes
+sigma^2 sum ||dx'||^2 + the (scale-free) information term. In metres, W ~ 2e-4
+and P0^-1 ~ 1e9 break both Clarabel and IPOPT.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from ..scenario import Scenario
+
+__all__ = ["ProblemData", "Layout", "sym"]
+
+
+@dataclass(frozen=True)
+class ProblemData:
+    """Scenario data in scaled units, hazards padded to a common face count."""
+
+    sigma: float
+    chi2: float
+    alpha: float
+    K: int
+    d: int
+    x0: np.ndarray            # (d,)
+    P0: np.ndarray            # (d, d)
+    W: np.ndarray             # (d, d)
+    A: np.ndarray             # (J, F, d) hazard normals (padded rows zero)
+    b: np.ndarray             # (J, F)
+    face_mask: np.ndarray     # (J, F) bool
+    hazard_names: tuple
+    At: np.ndarray            # (N, d) target normals
+    bt: np.ndarray            # (N,)
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario, K: int, alpha: float | None = None) -> "ProblemData":
+        W = np.asarray(scenario.W, float)
+        sigma = float(np.sqrt(np.max(np.linalg.eigvalsh(W))))
+        hz = scenario.hazards
+        F = max(h.n_faces for h in hz)
+        J = len(hz)
+        d = scenario.dim
+        A = np.zeros((J, F, d))
+        b = np.zeros((J, F))
+        mask = np.zeros((J, F), bool)
+        for j, h in enumerate(hz):
+            A[j, : h.n_faces] = h.A
+            b[j, : h.n_faces] = h.b / sigma
+            mask[j, : h.n_faces] = True
+        return cls(
+            sigma=sigma, chi2=float(scenario.chi2),
+            alpha=float(scenario.alpha if alpha is None else alpha), K=int(K), d=d,
+            x0=scenario.x0 / sigma, P0=scenario.P0 / sigma**2, W=W / sigma**2,
+            A=A, b=b, face_mask=mask, hazard_names=tuple(h.name for h in hz),
+            At=scenario.target.A.copy(), bt=scenario.target.b / sigma,
+        )
+
+    @property
+    def J(self) -> int:
+        return int(self.A.shape[0])
+
+    @property
+    def F(self) -> int:
+        return int(self.A.shape[1])
+
+    @cached_property
+    def Q1(self) -> np.ndarray:
+        """Fixed prior information of step 1, (P0 + W)^-1 (errata 8)."""
+        return np.linalg.inv(self.P0 + self.W)
+
+
+@dataclass
+class Layout:
+    """A point of the model in scaled units (k = 0..K; index 0 holds constants)."""
+
+    x: np.ndarray     # (K+1, d)
+    Q: np.ndarray     # (K+1, d, d) prior information (Q[0] unused, Q[1] fixed)
+    S: np.ndarray     # (K+1, d, d) sensing information (S[0] = 0)
+    lam: np.ndarray   # (K, J, F) certificates of transitions 1..K (padded faces 0)
+
+    @property
+    def Y(self) -> np.ndarray:
+        return self.Q + self.S
+
+    def copy(self) -> "Layout":
+        return Layout(self.x.copy(), self.Q.copy(), self.S.copy(), self.lam.copy())
+
+
+def sym(M: np.ndarray) -> np.ndarray:
+    """Symmetric part of a (batch of) square matrices."""
+    return 0.5 * (M + np.swapaxes(M, -1, -2))

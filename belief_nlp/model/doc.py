@@ -1,0 +1,333 @@
+"""The DOC program of one (scenario, K, alpha) as a symbolic CasADi model, and
+its convexification at a point: the form every CCP step solves.
+
+The program (eq. main_doc with C4-C8; scaled units of :mod:`.data`), k = 1..K,
+hazards j, target faces n:
+
+    min  sigma^2 sum_k ||x_k - x_{k-1}||^2 + alpha/2 sum_k (log det Y_k - log det Q_k)
+    s.t. S_k >= 0,  lam_kj >= 0,  Y_k = Q_k + S_k,  Q_1 = (P0 + W)^-1            (C8)
+         kalman_lmi(Q_k, Y_{k-1}) >= 0                                  k >= 2  (C7)
+         h1_lmi(R_kj, v_kj, Q_k) >= 0,  h2(R_kj, lam_kj, x_k) <= 0       end of k (C5, C6)
+         h1_lmi(R'_kj, v_kj, Y_{k-1}) >= 0,  h2(R'_kj, lam_kj, x_{k-1}) <= 0   start, k >= 2
+         v^T P0 v <= 2 lam^T (A x_0 - b) - chi2                          start, k = 1 (C8)
+         target_lmis(x_K, C_n, Y_K) >= 0                                         (C4)
+
+Its two nonconvex pieces are concave: alpha/2 log det Y_k in the objective and
+the bilinear h(lam, x) = 2 lam^T (A x - b) inside h2. The convexification at
+the current point p (CCP, section IV.A) keeps every convex term exactly and
+replaces
+  * alpha/2 log det Y by its tangent at Y~ (CasADi's gradient);
+  * h by its tangent at (lam~, x~) plus the remainder 2 dv^T dx (dv = A^T dlam,
+    dx = x - x~), majorised as
+        -2 dv^T dx <= 1/2 ||sqrt(rho) dv - dx / sqrt(rho)||^2
+    (the other half of the split, -1/2 ||sqrt(rho) dv + dx / sqrt(rho)||^2, is
+    concave with zero tangent at p). Any rho > 0 gives a convex majorant
+    tight at p, so rho is a parameter that adapts per pair (docs/numerics.md,
+    "The split of h2").
+The means enter as steps dx = x - x~ (the variables stay O(step) and the
+solver sees no cancellation between large constants).
+
+Every cone family is an expression of the decision vector z, affine in z,
+whose coefficients may depend on the parameter vector p (the current point
+and rho). :mod:`.cvxpy_form` turns the families into one CVXPY problem
+compiled once; the coefficient values for a point come from one generated
+CasADi function.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from . import terms
+from .data import Layout, ProblemData
+
+__all__ = ["ConeFamily", "ConvexForm", "StepLayout", "convex_form", "tangent"]
+
+KINDS = ("nonneg", "psd", "soc", "exp")
+
+
+@dataclass(frozen=True)
+class ConeFamily:
+    """``batch`` cones of one kind. ``expr`` stacks their entries, affine in z:
+    psd: the full n x n matrices row-major (n = ``dim``); soc: (t, y) with
+    ||y|| <= t (length ``dim``); exp: (a, b, c) with b exp(a / b) <= c; nonneg:
+    one entry per cone."""
+
+    name: str
+    kind: str
+    dim: int
+    batch: int
+    expr: ca.SX
+
+
+@dataclass
+class Blocks:
+    """Index maps of the subproblem's variables in z (-1: not a variable)."""
+
+    x: np.ndarray      # (K+1, d) steps dx_k (row 0: the fixed start)
+    Q: np.ndarray      # (K+1, d, d) symmetric, k >= 2
+    S: np.ndarray      # (K+1, d, d) symmetric, k >= 1
+    lam: np.ndarray    # (K, J, F) real faces only
+    R_end: np.ndarray  # (K, J)   h1/h2 auxiliaries at the end of each transition
+    R_start: np.ndarray  # (K, J) same at the start (row 0 unused: k = 1 is exact, C8)
+    C: np.ndarray      # (N,)     target auxiliaries
+    Z: np.ndarray      # (K+1, d, d) lower triangular, k >= 2 (log det epigraph)
+    u: np.ndarray      # (K+1, d) k >= 2
+    n: int
+
+
+def _blocks(D: ProblemData) -> Blocks:
+    K, J, F, d = D.K, D.J, D.F, D.d
+    counter = [0]
+
+    def alloc(shape) -> np.ndarray:
+        size = int(np.prod(shape))
+        out = np.arange(counter[0], counter[0] + size).reshape(shape)
+        counter[0] += size
+        return out
+
+    ti, tj = np.triu_indices(d)
+
+    def sym_map(ks) -> np.ndarray:
+        out = -np.ones((K + 1, d, d), dtype=int)
+        for k in ks:
+            idx = alloc(ti.size)
+            out[k, ti, tj] = idx
+            out[k, tj, ti] = idx
+        return out
+
+    x = -np.ones((K + 1, d), dtype=int)
+    x[1:] = alloc((K, d))
+    Q = sym_map(range(2, K + 1))
+    S = sym_map(range(1, K + 1))
+    lam = -np.ones((K, J, F), dtype=int)
+    lam[:, D.face_mask] = alloc((K, int(D.face_mask.sum())))
+    R_end = alloc((K, J))
+    R_start = -np.ones((K, J), dtype=int)
+    R_start[1:] = alloc((K - 1, J))
+    C = alloc(D.At.shape[0])
+    Z = -np.ones((K + 1, d, d), dtype=int)
+    u = -np.ones((K + 1, d), dtype=int)
+    li, lj = np.tril_indices(d)
+    for k in range(2, K + 1):
+        Z[k, li, lj] = alloc(li.size)
+        u[k] = alloc(d)
+    return Blocks(x, Q, S, lam, R_end, R_start, C, Z, u, counter[0])
+
+
+def _pick(z: ca.SX, idx: np.ndarray) -> ca.SX:
+    """Symbolic array (as an SX matrix of idx's 2-D shape) of z entries; 0 where idx < 0."""
+    idx = np.atleast_2d(idx)
+    out = ca.SX.zeros(*idx.shape)
+    for (i, j), v in np.ndenumerate(idx):
+        if v >= 0:
+            out[i, j] = z[int(v)]
+    return out
+
+
+def tangent(f: ca.Function, n_lin: int | None = None) -> ca.Function:
+    """Function (at_1..at_m, to_1..to_m, data...) -> the first-order Taylor
+    expansion of ``f`` in its first m = ``n_lin`` inputs at ``at``, evaluated
+    at ``to`` (the remaining inputs are data): the tangent CCP puts in place
+    of a concave part, derivatives by CasADi. Build once, call per term."""
+    m = f.n_in() if n_lin is None else n_lin
+    shape = [f.sparsity_in(i).shape for i in range(f.n_in())]
+    at = [ca.SX.sym(f"a{i}", *shape[i]) for i in range(m)]
+    to = [ca.SX.sym(f"t{i}", *shape[i]) for i in range(m)]
+    data = [ca.SX.sym(f"d{i}", *shape[i]) for i in range(m, f.n_in())]
+    val = f(*at, *data)
+    lin = val
+    for a, t in zip(at, to):
+        lin = lin + ca.mtimes(ca.jacobian(val, a), ca.vec(t - a))
+    return ca.Function(f"{f.name()}_tangent", at + to + data, [lin])
+
+
+def _rsoc(w: ca.SX, y: ca.SX) -> ca.SX:
+    """1/2 ||y||^2 <= w as the entries of one second-order cone (t, y, s)."""
+    s2 = np.sqrt(2.0)
+    return ca.vertcat((w + 1) / s2, y, (w - 1) / s2)
+
+
+@dataclass
+class StepLayout:
+    """Where the model's quantities sit in z and p: numbers only (picklable),
+    so a compiled problem loaded from disk needs no symbolic model."""
+
+    data: ProblemData
+    blocks: Blocks
+
+    # --------------------------------------------------------- numeric maps
+    def params(self, point: Layout, rho_start: np.ndarray, rho_end: np.ndarray) -> np.ndarray:
+        """Parameter vector of ``point`` with split weights rho (K, J) at both ends."""
+        return np.concatenate([point.x.ravel(), point.Q.ravel(), point.S.ravel(), point.lam.ravel(),
+                               np.asarray(rho_start, float).ravel(), np.asarray(rho_end, float).ravel()])
+
+    def point_vector(self, point: Layout) -> np.ndarray:
+        """z of ``point`` itself (dx = 0) with every auxiliary at its tightest
+        value: R = v^T Y^-1 v, C_n = 1 / sqrt(a^T Y_K^-1 a), Z = L diag(L) and
+        u = log diag Z for Q = L L^T. A strictly feasible point is strictly
+        feasible for its own convexification (tests check this)."""
+        D, B = self.data, self.blocks
+        K = D.K
+        out = np.zeros(B.n)
+        for imap, M in ((B.Q, point.Q), (B.S, point.S), (B.lam, point.lam)):
+            keep = imap >= 0
+            out[imap[keep]] = M[keep]
+        v = np.einsum("jfd,kjf->kjd", D.A, point.lam)
+        Y = point.Y
+        out[B.R_end] = np.einsum("kjd,kjd->kj", v, np.linalg.solve(point.Q[1:, None], v[..., None])[..., 0])
+        if K > 1:
+            out[B.R_start[1:]] = np.einsum("kjd,kjd->kj", v[1:],
+                                           np.linalg.solve(Y[1:-1, None], v[1:, ..., None])[..., 0])
+        aYa = np.einsum("nd,nd->n", D.At, np.linalg.solve(Y[K], D.At.T).T)
+        out[B.C] = 1.0 / np.sqrt(aYa)
+        li, lj = np.tril_indices(D.d)
+        for k in range(2, K + 1):
+            L = np.linalg.cholesky(point.Q[k])
+            Zk = L * np.diag(L)[None, :]
+            out[B.Z[k, li, lj]] = Zk[li, lj]
+            out[B.u[k]] = np.log(np.diag(Zk))
+        return out
+
+    def extract(self, zv: np.ndarray, point: Layout) -> Layout:
+        """The new point from a solution vector (means = x~ + dx). S is projected
+        on the PSD cone (the solver keeps S >= 0 only to its tolerance; more
+        sensing can only shrink ellipses), lam on lam >= 0."""
+        D, B = self.data, self.blocks
+        K, d = D.K, D.d
+        x = point.x.copy()
+        x[1:] += zv[B.x[1:]]
+        Q = np.zeros((K + 1, d, d))
+        Q[1] = D.Q1
+        if K > 1:
+            Q[2:] = zv[B.Q[2:]]
+        S = np.zeros((K + 1, d, d))
+        S[1:] = zv[B.S[1:]]
+        w, V = np.linalg.eigh(S[1:])
+        S[1:] = (V * np.maximum(w, 0.0)[:, None, :]) @ np.swapaxes(V, -1, -2)
+        lam = np.where(B.lam >= 0, zv[np.maximum(B.lam, 0)], 0.0)
+        return Layout(x, Q, S, np.maximum(lam, 0.0))
+
+
+
+@dataclass
+class ConvexForm:
+    """The convexified DOC program at a symbolic point (see module doc).
+
+    z : decision vector (steps, Q, S, lam, auxiliaries; ``layout.blocks``).
+    p : parameter vector, the point of linearisation and the split weights
+        (:meth:`StepLayout.params`).
+    objective : quadratic in z.
+    families : the cone constraints.
+    """
+
+    layout: StepLayout
+    z: ca.SX
+    p: ca.SX
+    objective: ca.SX
+    families: list[ConeFamily]
+    chi2: float
+
+
+def convex_form(D: ProblemData, chi2_margin: float = 1e-7) -> ConvexForm:
+    """Build the convexified DOC program of ``D`` symbolically (see module doc).
+
+    chi2_margin : every collision and containment constraint uses
+        chi2 (1 + chi2_margin), so that solver rounding never leaves an answer
+        on the wrong side of the exact check.
+    """
+    K, J, F, d = D.K, D.J, D.F, D.d
+    N = D.At.shape[0]
+    B = _blocks(D)
+    chi2 = D.chi2 * (1.0 + chi2_margin)
+    z = ca.SX.sym("z", B.n)
+    # parameters: the point (x, Q, S, lam) and the split weights
+    sizes = [(K + 1) * d, (K + 1) * d * d, (K + 1) * d * d, K * J * F, K * J, K * J]
+    p = ca.SX.sym("p", int(sum(sizes)))
+    parts = ca.vertsplit(p, list(np.concatenate([[0], np.cumsum(sizes)]).astype(int)))
+    xt = ca.reshape(parts[0], d, K + 1)               # column k = x~_k (row-major ravel -> transposed)
+    Qt = [ca.reshape(parts[1][k * d * d:(k + 1) * d * d], d, d).T for k in range(K + 1)]
+    St = [ca.reshape(parts[2][k * d * d:(k + 1) * d * d], d, d).T for k in range(K + 1)]
+    lamt = ca.reshape(parts[3], F, K * J)             # column k*J + j
+    rho_s = parts[4]
+    rho_e = parts[5]
+
+    def sym_var(imap_k: np.ndarray) -> ca.SX:
+        return _pick(z, imap_k)
+
+    X = [ca.DM(D.x0)] + [xt[:, k] + _pick(z, B.x[k][:, None]) for k in range(1, K + 1)]
+    Q = [None, ca.DM(D.Q1)] + [sym_var(B.Q[k]) for k in range(2, K + 1)]
+    S = [None] + [sym_var(B.S[k]) for k in range(1, K + 1)]
+    Y = [None] + [Q[k] + S[k] for k in range(1, K + 1)]
+    Yt = [None] + [(ca.DM(D.Q1) if k == 1 else Qt[k]) + St[k] for k in range(1, K + 1)]
+    Lam = [[_pick(z, B.lam[k - 1, j][:, None]) for j in range(J)] for k in range(1, K + 1)]
+
+    # ------------------------------------------------------------ objective
+    control = D.sigma**2 * sum(terms.control(X[k - 1], X[k]) for k in range(1, K + 1))
+    Ysym = ca.SX.sym("Y", d, d)
+    f_logdet = ca.Function("logdet", [Ysym], [terms.logdet(Ysym)])
+    logdet_tangent = tangent(f_logdet)
+    concave = sum(logdet_tangent(Yt[k], Y[k]) for k in range(1, K + 1))
+    # -log det Q_k: its conic epigraph (u_k); log det Q_1 is a constant
+    neg_logdet_q = -sum(ca.sum1(_pick(z, B.u[k][:, None])) for k in range(2, K + 1)) if K > 1 else 0
+    objective = control + 0.5 * D.alpha * (concave + neg_logdet_q)
+
+    fam: list[ConeFamily] = []
+
+    def add(name: str, kind: str, dim: int, items: list) -> None:
+        if items:
+            fam.append(ConeFamily(name, kind, dim, len(items), ca.vertcat(*[ca.vec(e.T) for e in items])))
+
+    lam_idx = B.lam[B.lam >= 0]
+    fam.append(ConeFamily("lam_nonneg", "nonneg", 1, lam_idx.size, _pick(z, lam_idx[:, None])))
+    add("sensing_psd", "psd", d, [S[k] for k in range(1, K + 1)])
+    Winv = ca.DM(np.linalg.inv(D.W))
+    add("kalman_lmi", "psd", 2 * d, [terms.kalman_lmi(Q[k], Y[k - 1], Winv) for k in range(2, K + 1)])
+    Zk = {k: _pick(z, B.Z[k]) for k in range(2, K + 1)}
+    add("logdet_lmi", "psd", 2 * d, [terms.logdet_epigraph_lmi(Q[k], Zk[k]) for k in range(2, K + 1)])
+    add("logdet_exp", "exp", 3, [ca.vertcat(z[int(B.u[k, i])], 1, Zk[k][i, i])
+                                 for k in range(2, K + 1) for i in range(d)])
+
+    # collision constraints: h1 exactly, h2 with the bilinear term convexified
+    xs, ls, As, bs = (ca.SX.sym("x", d), ca.SX.sym("lam", F), ca.SX.sym("A", F, d), ca.SX.sym("b", F))
+    bil_tangent = tangent(ca.Function("bilinear", [ls, xs, As, bs], [terms.bilinear(ls, xs, As, bs)]), 2)
+    h1_end, h2_end, h1_start, h2_start, first = [], [], [], [], []
+    w0, V0 = np.linalg.eigh(D.P0)
+    Ld = ca.DM(V0 * np.sqrt(np.maximum(w0, 0.0)))        # P0 = Ld Ld^T (P0 may be singular, C8)
+    for k in range(1, K + 1):
+        for j in range(J):
+            A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
+            lam = Lam[k - 1][j]
+            lt = lamt[:, (k - 1) * J + j]
+            dv = ca.mtimes(A.T, lam - lt)
+            for end in (True, False):
+                if not end and k == 1:
+                    # C8: v^T P0 v <= 2 lam^T (A x0 - b) - chi2, exactly (x0 fixed)
+                    w = 0.5 * (terms.bilinear(lam, X[0], A, b) - chi2)
+                    first.append(_rsoc(w, ca.mtimes(Ld.T, ca.mtimes(A.T, lam))))
+                    continue
+                kx = k if end else k - 1
+                R = z[int((B.R_end if end else B.R_start)[k - 1, j])]
+                v = ca.mtimes(A.T, lam)
+                (h1_end if end else h1_start).append(terms.h1_lmi(R, v, Q[k] if end else Y[k - 1]))
+                dx = X[kx] - xt[:, kx] if kx > 0 else ca.SX.zeros(d)
+                h_lin = bil_tangent(lt, xt[:, kx], lam, X[kx], A, b)
+                h2_lin = R + chi2 - h_lin            # h2 with h replaced by its tangent
+                r = ca.sqrt((rho_e if end else rho_s)[(k - 1) * J + j])
+                (h2_end if end else h2_start).append(_rsoc(-h2_lin, r * dv - dx / r))
+    add("h1_end", "psd", d + 1, h1_end)
+    add("h2_end", "soc", d + 2, h2_end)
+    add("h1_start", "psd", d + 1, h1_start)
+    add("h2_start", "soc", d + 2, h2_start)
+    add("start_exact", "soc", d + 2, first)
+    t1, t2 = [], []
+    for n in range(N):
+        m1, m2 = terms.target_lmis(X[K], z[int(B.C[n])], Y[K], ca.DM(D.At[n]), D.bt[n], chi2)
+        t1.append(m1)
+        t2.append(m2)
+    add("target_face", "psd", 2, t1)
+    add("target_shape", "psd", d + 1, t2)
+    return ConvexForm(StepLayout(D, B), z, p, objective, fam, chi2)

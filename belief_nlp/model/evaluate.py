@@ -1,0 +1,157 @@
+"""Numbers from the model: the exact DOC program's cost and constraint margins
+at a point, and the conversions between points and belief paths.
+
+:class:`BeliefModel` evaluates the terms of :mod:`.terms` (the same CasADi
+expressions the solver forms are built from), mapped over steps and hazards.
+It also owns the (scenario, K, alpha) data and, lazily, the symbolic convex
+form of the CCP step.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+
+from ..scenario import Scenario
+from . import terms
+from .data import Layout, ProblemData, sym
+
+__all__ = ["BeliefModel"]
+
+
+def _hcat(M: np.ndarray) -> np.ndarray:
+    """(n, r, c) -> r x (n c): the column layout of CasADi's Function.map."""
+    return np.concatenate(list(M), axis=1) if M.shape[0] else np.zeros(M.shape[1:2] + (0,))
+
+
+class BeliefModel:
+    """The model of the smoothing problem for one scenario, horizon and alpha.
+
+    Its CasADi functions are built once from :mod:`.terms`; the methods below
+    evaluate them on a :class:`Layout` (scaled units).
+    """
+
+    def __init__(self, scenario: Scenario, K: int, alpha: float | None = None):
+        self.scenario = scenario
+        self.data = ProblemData.from_scenario(scenario, K, alpha)
+        D = self.data
+        d, F = D.d, D.F
+        x, xp = ca.SX.sym("x", d), ca.SX.sym("x_prev", d)
+        Y, Q, P = ca.SX.sym("Y", d, d), ca.SX.sym("Q", d, d), ca.SX.sym("P", d, d)
+        lam, A, b = ca.SX.sym("lam", F), ca.SX.sym("A", F, d), ca.SX.sym("b", F)
+        a, bt = ca.SX.sym("a", d), ca.SX.sym("bt")
+        self.f_step = ca.Function("step_cost", [xp, x, Y, Q], [terms.control(xp, x), terms.information(Y, Q)],
+                                  ["x_prev", "x", "Y", "Q"], ["control", "information"])
+        self.f_margin_inv = ca.Function("margin_inv", [x, Y, lam, A, b],
+                                        [terms.collision_margin_inv(x, Y, lam, A, b, D.chi2)],
+                                        ["x", "Y", "lam", "A", "b"], ["margin"])
+        self.f_margin_cov = ca.Function("margin_cov", [x, P, lam, A, b],
+                                        [terms.collision_margin_cov(x, P, lam, A, b, D.chi2)],
+                                        ["x", "P", "lam", "A", "b"], ["margin"])
+        self.f_target = ca.Function("target_margin", [x, Y, a, bt], [terms.target_margin(x, Y, a, bt, D.chi2)],
+                                    ["x", "Y", "a", "b"], ["margin"])
+        self.f_kalman = ca.Function("kalman_residual", [Q, Y], [terms.kalman_residual(Q, Y, ca.DM(D.W))],
+                                    ["Q", "Y_prev"], ["residual"])
+
+    @cached_property
+    def convex_form(self):
+        """The symbolic convexified program of a CCP step (:func:`.doc.convex_form`)."""
+        from .doc import convex_form
+
+        return convex_form(self.data)
+
+    # ------------------------------------------------------ evaluations
+    def cost(self, z: Layout) -> tuple[float, float, float]:
+        """(total, control, information) in SI units: sum ||dx||^2 (m^2) and nats."""
+        D = self.data
+        K = D.K
+        c, i = self.f_step.map(K)(z.x[:-1].T, z.x[1:].T, _hcat(z.Y[1:]), _hcat(z.Q[1:]))
+        control = float(D.sigma**2 * np.sum(np.asarray(c)))
+        info = float(np.sum(np.asarray(i)))
+        return control + D.alpha * info, control, info
+
+    def _pairs(self, xs: np.ndarray, Ms: np.ndarray, lam: np.ndarray, f: ca.Function) -> np.ndarray:
+        """f over every (step, hazard): xs (n, d), Ms (n, d, d), lam (n, J, F) -> (n, J)."""
+        D = self.data
+        n, J = xs.shape[0], D.J
+        if n == 0:
+            return np.zeros((0, J))
+        m = n * J
+        A = np.tile(D.A, (n, 1, 1))
+        out = f.map(m)(np.repeat(xs, J, axis=0).T, _hcat(np.repeat(Ms, J, axis=0)), lam.reshape(m, D.F).T,
+                       _hcat(A), np.tile(D.b, (n, 1)).T)
+        return np.asarray(out).reshape(n, J)
+
+    def transition_margins(self, z: Layout) -> tuple[np.ndarray, np.ndarray]:
+        """Theorem-1 margins (certificate values) of both ends of every
+        transition and hazard, scaled units, >= 0 is clear: (start (K, J), end (K, J))."""
+        D = self.data
+        end = self._pairs(z.x[1:], z.Q[1:], z.lam, self.f_margin_inv)
+        start = np.empty_like(end)
+        start[1:] = self._pairs(z.x[1:-1], z.Y[1:-1], z.lam[1:], self.f_margin_inv)
+        start[0] = self._pairs(z.x[:1], D.P0[None], z.lam[:1], self.f_margin_cov)[0]
+        return start, end
+
+    def target_margins(self, z: Layout) -> np.ndarray:
+        """Containment margin of the final posterior per target face (scaled length)."""
+        D = self.data
+        N = D.At.shape[0]
+        out = self.f_target.map(N)(np.tile(z.x[-1][:, None], (1, N)), _hcat(np.repeat(z.Y[-1:], N, axis=0)),
+                                   D.At.T, D.bt[None, :])
+        return np.asarray(out).ravel()
+
+    def kalman_residuals(self, z: Layout) -> np.ndarray:
+        """Q_k^-1 - Y_{k-1}^-1 - W for k = 2..K, (K-1, d, d)."""
+        K, d = self.data.K, self.data.d
+        if K < 2:
+            return np.zeros((0, d, d))
+        g = np.asarray(self.f_kalman.map(K - 1)(_hcat(z.Q[2:]), _hcat(z.Y[1:-1])))
+        return sym(np.stack(np.split(g, K - 1, axis=1)))
+
+    def kalman_gaps(self, z: Layout) -> np.ndarray:
+        """Smallest eigenvalue of each Kalman residual (>= 0: the relaxation holds)."""
+        r = self.kalman_residuals(z)
+        return np.linalg.eigvalsh(r)[:, 0] if r.shape[0] else np.zeros(0)
+
+    def kalman_relative_gap(self, z: Layout) -> float:
+        """max_k ||Q_k^-1 - Y_{k-1}^-1 - W|| / ||Q_k^-1||: how far the relaxed
+        Kalman step (prob_2) is from the equality (Lemma 2 says 0 at the optimum)."""
+        r = self.kalman_residuals(z)
+        if not r.shape[0]:
+            return 0.0
+        Pq = np.linalg.inv(z.Q[2:])
+        return float(np.max(np.linalg.norm(r, axis=(1, 2)) / np.linalg.norm(Pq, axis=(1, 2))))
+
+    # ------------------------------------------------------ conversions
+    def tighten(self, z: Layout) -> Layout:
+        """Replace Q by the Kalman recursion from S (Lemma 2): stays feasible
+        (every ellipse shrinks) and never increases the cost."""
+        D = self.data
+        out = z.copy()
+        out.Q[1] = D.Q1
+        for k in range(2, D.K + 1):
+            Pk = np.linalg.inv(out.Q[k - 1] + out.S[k - 1])
+            out.Q[k] = sym(np.linalg.inv(Pk + D.W))
+        return out
+
+    def to_path(self, z: Layout, meta: dict | None = None):
+        """BeliefPath in SI units (Kalman-consistent: priors rolled out from S)."""
+        from ..path import BeliefPath
+
+        D = self.data
+        S_si = z.S / D.sigma**2
+        S_si[0] = 0.0
+        return BeliefPath.from_sensing(z.x * D.sigma, self.scenario.P0, S_si, W=self.scenario.W,
+                                       noise="per_step", meta=dict(meta or {}))
+
+    def from_path(self, path, lam_si: np.ndarray) -> Layout:
+        """Layout from a per-step BeliefPath (SI) and its certificates (K, J, F) in SI."""
+        D = self.data
+        s2 = D.sigma**2
+        S = np.array(path.S, dtype=float) * s2
+        S[0] = 0.0
+        Q = np.zeros_like(S)
+        Q[1:] = np.linalg.inv(np.asarray(path.P_prior[1:]) / s2)
+        return Layout(np.array(path.x, dtype=float) / D.sigma, sym(Q), sym(S), np.asarray(lam_si) * D.sigma)

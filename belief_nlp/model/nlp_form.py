@@ -1,0 +1,263 @@
+"""The exact DOC program as one NLP for CasADi's ``nlpsol`` (IPOPT and the other
+NLP solvers), built from the model's terms (:class:`~belief_nlp.model.BeliefModel`
+functions over :mod:`.terms`); this module only chooses the variables.
+
+Variables, k = 1..K (scaled units): means x_k; sensing S_k = L_k L_k^T (L_k
+lower triangular: every L gives S >= 0 and S = 0 is the smooth point L = 0);
+prior information Q_k = M_k M_k^T for k >= 2 (diag M_k >= 1e-8, so
+log det Q_k = 2 sum log M_k,ii), tied to the previous step by the Kalman
+equality (Lemma 2); Q_1 = (P0 + W)^-1 fixed (C8); one certificate
+lam_kj >= 0 per transition and hazard (Theorem 1, C5), real faces only.
+
+    min  sigma^2 sum_k ||x_k - x_{k-1}||^2 + alpha/2 sum_k (log det Y_k - log det Q_k)
+         + eps/2 ||lam - lam_0||^2
+    s.t. kalman_residual(Q_k, Y_{k-1}) = 0                         k >= 2
+         collision_margin_cov(x_0, P0, lam_1j)        >= m         k = 1 start (C8)
+         collision_margin_inv(x_{k-1}, Y_{k-1}, lam_kj) >= m       k >= 2 start
+         collision_margin_inv(x_k, Q_k, lam_kj)        >= m        every end
+         target_margin(x_K, Y_K, a_n, b_n)             >= m'       (C4)
+
+with m = margin chi2 and m' = margin (scaled length). Why these choices and
+the measured alternatives ("minors", "eliminated"): docs/numerics.md, "IPOPT".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from itertools import combinations
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+
+from ..errors import ValidationError
+from . import terms
+from .data import Layout
+from .evaluate import BeliefModel
+
+__all__ = ["NLPProblem", "build_nlp", "FORMULATIONS"]
+
+FORMULATIONS = ("cholesky", "minors", "eliminated")
+
+
+@dataclass
+class NLPProblem:
+    """The smoothing problem as one CasADi NLP (scaled units of model.py).
+
+    Attributes
+    ----------
+    z, p, f, g : CasADi SX decision vector, parameter (the certificates lam_0
+        of the proximal term), objective and constraints.
+    lbz, ubz, lbg, ubg : bounds (numpy).
+    parts : Function (z, p) -> (control [m^2], information [nats], regulariser).
+    margins : Function z -> (collision margins (2 K J,), target margins (N,));
+        collision margins are the certificate values
+        -v^T P v + 2 lam^T (A x - b) - chi2 (a lower bound on the squared
+        Mahalanobis clearance minus chi2), ordered (k, j, start/end).
+    pack : Layout -> z values; unpack : z values -> Layout (S from its
+        factor; Q as the variables say -- use model.tighten for the Kalman one).
+    anchor : Layout -> p values (its certificates).
+    n_collision : number of collision rows at the start of g.
+    """
+
+    formulation: str
+    z: ca.SX
+    p: ca.SX
+    f: ca.SX
+    g: ca.SX
+    lbz: np.ndarray
+    ubz: np.ndarray
+    lbg: np.ndarray
+    ubg: np.ndarray
+    parts: ca.Function
+    margins: ca.Function
+    pack: Callable[[Layout], np.ndarray]
+    unpack: Callable[[np.ndarray], Layout]
+    anchor: Callable[[Layout], np.ndarray]
+    n_collision: int
+    info: dict = field(default_factory=dict)
+
+
+def _tri_index(d: int) -> list[tuple[int, int]]:
+    return [(i, j) for i in range(d) for j in range(i + 1)]
+
+
+def _lower(v: ca.SX, tri: list, d: int) -> ca.SX:
+    M = ca.SX.zeros(d, d)
+    for p, (i, j) in enumerate(tri):
+        M[i, j] = v[p]
+    return M
+
+
+def _symmetric(v: ca.SX, tri: list, d: int) -> ca.SX:
+    M = ca.SX.zeros(d, d)
+    for p, (i, j) in enumerate(tri):
+        M[i, j] = v[p]
+        M[j, i] = v[p]
+    return M
+
+
+def _psd_factor(S: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factor of the PSD part of S (a tiny jitter for S = 0)."""
+    S = 0.5 * (S + S.T)
+    w, V = np.linalg.eigh(S)
+    Sp = (V * np.maximum(w, 0.0)) @ V.T
+    jitter = 1e-12 * max(1.0, float(np.trace(Sp)))
+    return np.linalg.cholesky(Sp + jitter * np.eye(S.shape[0]))
+
+
+def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float = 1e-6,
+              regularisation: float = 1e-4) -> NLPProblem:
+    """Build the NLP of the module docstring from ``model``'s CasADi functions.
+
+    formulation : "cholesky" (S = L L^T, Q_k = M_k M_k^T lifted with the Kalman
+        equality; default), "minors" (S symmetric, kept PSD by its principal
+        minors; Q as "cholesky") or "eliminated" (S = L L^T, Q_k given by the
+        Kalman recursion, no Q variables).
+    margin : relative clearance margin kept in every collision constraint
+        (m = margin * chi2) and absolute one (scaled length) in containment.
+    regularisation : eps of the certificates' proximal term (0 to drop it);
+        its centre lam_0 is the NLP's parameter (``NLPProblem.anchor``).
+    """
+    if formulation not in FORMULATIONS:
+        raise ValidationError("formulation", f"must be one of {FORMULATIONS}, got {formulation!r}")
+    D = model.data
+    K, d, J, F = D.K, D.d, D.J, D.F
+    tri = _tri_index(d)
+    t = len(tri)
+    diag_pos = [tri.index((i, i)) for i in range(d)]
+    nf = D.face_mask.sum(axis=1).astype(int)
+    offs = np.concatenate([[0], np.cumsum(nf)])
+    n_lam = int(offs[-1])
+    lift_q = formulation in ("cholesky", "minors")
+
+    X = ca.SX.sym("x", d, K)
+    Sv = ca.SX.sym("s", t, K)
+    Mv = ca.SX.sym("m", t, K - 1) if lift_q else ca.SX(t, 0)
+    Lam = ca.SX.sym("lam", n_lam, K)
+    W = ca.DM(D.W)
+    xs = [ca.DM(D.x0)] + [X[:, k] for k in range(K)]
+
+    Q: list = [None, ca.DM(D.Q1)]
+    logdet_q: list = [None, float(np.linalg.slogdet(D.Q1)[1])]
+    Y: list = [None]
+    g_kal, g_psd = [], []
+    for k in range(1, K + 1):
+        if k >= 2:
+            if lift_q:
+                Mk = _lower(Mv[:, k - 2], tri, d)
+                Qk = Mk @ Mk.T
+                logdet_q.append(2 * ca.sum1(ca.log(ca.diag(Mk))))
+                gap = model.f_kalman(Qk, Y[k - 1])       # terms.kalman_residual (Lemma 2: = 0)
+                g_kal.append(ca.vertcat(*[gap[i, j] for i, j in tri]))
+            else:
+                Qk = ca.inv(ca.inv(Y[k - 1]) + W)        # the Kalman recursion itself
+                Qk = 0.5 * (Qk + Qk.T)
+                logdet_q.append(terms.logdet(Qk))
+            Q.append(Qk)
+        if formulation == "minors":
+            Sk = _symmetric(Sv[:, k - 1], tri, d)
+            for r in range(1, d + 1):
+                for rows in map(list, combinations(range(d), r)):
+                    g_psd.append(ca.det(Sk[rows, rows]))
+        else:
+            Lk = _lower(Sv[:, k - 1], tri, d)
+            Sk = Lk @ Lk.T
+        Y.append(Q[k] + Sk)
+
+    control = D.sigma ** 2 * sum(terms.control(xs[k - 1], xs[k]) for k in range(1, K + 1))
+    information = 0.5 * sum(terms.logdet(Y[k]) - logdet_q[k] for k in range(1, K + 1))
+
+    # collision constraints (Theorem 1, common lambda), ordered (k, j, start/end)
+    g_col = []
+    P0 = ca.DM(D.P0)
+    for k in range(1, K + 1):
+        for j in range(J):
+            lam = ca.vertcat(Lam[offs[j]:offs[j + 1], k - 1], ca.SX.zeros(F - nf[j]))
+            A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
+            if k == 1:
+                g_col.append(model.f_margin_cov(xs[0], P0, lam, A, b))
+            else:
+                g_col.append(model.f_margin_inv(xs[k - 1], Y[k - 1], lam, A, b))
+            g_col.append(model.f_margin_inv(xs[k], Q[k], lam, A, b))
+    g_tgt = [model.f_target(xs[K], Y[K], ca.DM(D.At[n]), D.bt[n]) for n in range(D.At.shape[0])]
+
+    Lam0 = ca.SX.sym("lam0", n_lam, K)
+    reg = 0.5 * regularisation * ca.sumsqr(Lam - Lam0)
+    p = ca.vec(Lam0)
+
+    z = ca.veccat(X, Sv, Mv, Lam)
+    g_col_v = ca.vertcat(*g_col)
+    g_tgt_v = ca.vertcat(*g_tgt)
+    g = ca.vertcat(g_col_v, g_tgt_v, *g_kal, *g_psd)
+    n_col, n_tgt, n_kal, n_psd = len(g_col), len(g_tgt), t * len(g_kal), len(g_psd)
+    lbg = np.concatenate([np.full(n_col, margin * D.chi2), np.full(n_tgt, margin), np.zeros(n_kal), np.zeros(n_psd)])
+    ubg = np.concatenate([np.full(n_col + n_tgt, np.inf), np.zeros(n_kal), np.full(n_psd, np.inf)])
+
+    nX, nS, nM = d * K, t * K, t * (K - 1) if lift_q else 0
+    lbz = np.full(z.shape[0], -np.inf)
+    ubz = np.full(z.shape[0], np.inf)
+    if lift_q:
+        m_lb = np.full((t, K - 1), -np.inf)
+        m_lb[diag_pos, :] = 1e-8                       # M_k,ii > 0: log det Q_k defined
+        lbz[nX + nS:nX + nS + nM] = m_lb.ravel(order="F")
+    lbz[nX + nS + nM:] = 0.0                           # lam >= 0
+
+    parts = ca.Function("parts", [z, p], [control, information, reg], ["z", "p"],
+                        ["control", "information", "regulariser"])
+    margins = ca.Function("margins", [z], [g_col_v, g_tgt_v], ["z"], ["collision", "target"])
+
+    def pack(lay: Layout) -> np.ndarray:
+        Xv = lay.x[1:].T
+        if formulation == "minors":
+            Sp = np.stack([[0.5 * (lay.S[k][i, j] + lay.S[k][j, i]) for i, j in tri] for k in range(1, K + 1)], 1)
+        else:
+            Sp = np.stack([[_psd_factor(lay.S[k])[i, j] for i, j in tri] for k in range(1, K + 1)], 1)
+        parts_ = [Xv.ravel(order="F"), Sp.ravel(order="F")]
+        if lift_q:
+            Mp = np.stack([[np.linalg.cholesky(0.5 * (lay.Q[k] + lay.Q[k].T))[i, j] for i, j in tri]
+                           for k in range(2, K + 1)], 1) if K > 1 else np.zeros((t, 0))
+            parts_.append(Mp.ravel(order="F"))
+        parts_.append(anchor(lay))
+        return np.concatenate(parts_)
+
+    def anchor(lay: Layout) -> np.ndarray:
+        return np.concatenate([lay.lam[:, j, :nf[j]] for j in range(J)], axis=1).T.ravel(order="F")
+
+    def unpack(zv: np.ndarray) -> Layout:
+        zv = np.asarray(zv, float).ravel()
+        x = np.vstack([D.x0[None], zv[:nX].reshape(K, d)])
+        Sp = zv[nX:nX + nS].reshape(K, t)
+        S = np.zeros((K + 1, d, d))
+        for k in range(1, K + 1):
+            M = np.zeros((d, d))
+            for p, (i, j) in enumerate(tri):
+                M[i, j] = Sp[k - 1, p]
+            if formulation == "minors":
+                Ssym = M + M.T - np.diag(np.diag(M))
+                w, V = np.linalg.eigh(Ssym)
+                S[k] = (V * np.maximum(w, 0.0)) @ V.T      # bound_relax_factor allows ~1e-8 negative minors
+            else:
+                S[k] = M @ M.T
+        Qm = np.zeros((K + 1, d, d))
+        Qm[1] = D.Q1
+        if lift_q and K > 1:
+            Mp = zv[nX + nS:nX + nS + nM].reshape(K - 1, t)
+            for k in range(2, K + 1):
+                M = np.zeros((d, d))
+                for p, (i, j) in enumerate(tri):
+                    M[i, j] = Mp[k - 2, p]
+                Qm[k] = M @ M.T
+        lam_c = zv[nX + nS + nM:].reshape(K, n_lam)
+        lam = np.zeros((K, J, F))
+        for j in range(J):
+            lam[:, j, :nf[j]] = lam_c[:, offs[j]:offs[j + 1]]
+        lay = Layout(x, Qm, S, lam)
+        if not lift_q:
+            lay = model.tighten(lay)
+        return lay
+
+    return NLPProblem(formulation, z, p, control + D.alpha * information + reg, g, lbz, ubz, lbg, ubg, parts,
+                      margins, pack, unpack, anchor, n_col,
+                      info={"n_variables": int(z.shape[0]), "n_constraints": int(g.shape[0]),
+                            "n_kalman": n_kal, "n_psd": n_psd, "n_target": n_tgt})

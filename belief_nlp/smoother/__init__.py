@@ -1,0 +1,11 @@
+"""The shared smoothing driver: method registry, problem context, warm start and results."""
+
+from .context import Check, Outcome, SmoothingProblem
+from .driver import smooth
+from .registry import Method, Option, available_methods, get_method, register, unregister
+from .result import STATUSES, IterationRecord, SmoothResult
+from .warmstart import WarmStart, warm_start
+
+__all__ = ["Check", "IterationRecord", "Method", "Option", "Outcome", "STATUSES", "SmoothResult",
+           "SmoothingProblem", "WarmStart", "available_methods", "get_method", "register", "smooth",
+           "unregister", "warm_start"]

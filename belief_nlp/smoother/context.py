@@ -1,0 +1,170 @@
+"""What every smoothing method receives: the model, an exactly safe start,
+the limits, and the shared safety check and history.
+
+A method's ``run(problem, **options)`` iterates, calls :meth:`SmoothingProblem.check`
+on each candidate point, :meth:`SmoothingProblem.record` once per iteration,
+and returns an :class:`Outcome`. The driver (:mod:`.driver`) then chooses the
+answer -- the method's point if it is exactly safe, verified and not above the
+warm start, else the best accepted iterate, else the warm start -- so every
+method reports in the same terms (docs/architecture.md, "The contract").
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from ..geometry import PolytopeSet, transition_minimiser
+from ..model import BeliefModel, Layout
+from ..scenario import Scenario
+from .result import IterationRecord
+from .warmstart import WarmStart, certificates
+
+__all__ = ["Check", "Outcome", "SmoothingProblem"]
+
+
+@dataclass
+class Check:
+    """Exact safety of a point: ``margin`` = min over transitions and hazards of
+    the continuous-time squared Mahalanobis clearance minus chi2 (Theorem 1,
+    exact 1-D minimisation), ``target`` = smallest containment margin of the
+    final posterior (scaled length). ``point`` carries repaired certificates."""
+
+    point: Layout
+    margin: float
+    target: float
+
+    @property
+    def safe(self) -> bool:
+        return bool(self.margin >= 0 and self.target >= 0)   # NaN is never safe
+
+
+@dataclass
+class Outcome:
+    """What a method returns.
+
+    status : one of :data:`~belief_nlp.smoother.result.STATUSES`.
+    point : the method's answer (None: the driver takes the best accepted iterate).
+    solver : the solver that ran (for the result).
+    stats : raw solver statistics (return status, iterations, times, ...).
+    """
+
+    status: str
+    message: str
+    point: Layout | None = None
+    solver: str = ""
+    stats: dict = field(default_factory=dict)
+
+
+class SmoothingProblem:
+    """One smoothing run as a method sees it.
+
+    Attributes: ``scenario``, ``model`` (:class:`~belief_nlp.model.BeliefModel`),
+    ``warm`` (the :class:`WarmStart`), ``start`` (its exactly safe point),
+    ``cost0``, ``max_iter``, ``tol``, ``solver``, ``solver_options``,
+    ``progress``, ``keep_iterates``, ``history``.
+    """
+
+    def __init__(self, scenario: Scenario, warm: WarmStart, model: BeliefModel, *, max_iter: int, tol: float,
+                 time_limit: float | None, t0: float, solver: str | None, solver_options: dict,
+                 progress: bool, keep_iterates: bool, callback: Callable | None, method: str):
+        self.scenario = scenario
+        self.warm = warm
+        self.model = model
+        self.max_iter = int(max_iter)
+        self.tol = float(tol)
+        self.time_limit = time_limit
+        self.t0 = t0
+        self.solver = solver
+        self.solver_options = dict(solver_options)
+        self.progress = progress
+        self.keep_iterates = keep_iterates
+        self.callback = callback
+        self.method = method
+        self.hazards = PolytopeSet.build(scenario.hazards)
+        chk = self.check(model.tighten(model.from_path(warm.path, warm.lam)))
+        self.start = chk.point
+        self.cost0, ctrl0, info0 = model.cost(self.start)
+        self.history: list[IterationRecord] = [
+            IterationRecord(0, self.cost0, ctrl0, info0, "warm_start", min_margin=chk.margin, kalman_gap=0.0)]
+        self.points: dict[int, Layout] = {}      # accepted iterates kept (iteration -> point)
+        self.stop_requested = False
+
+    # ------------------------------------------------------------ budget
+    @property
+    def deadline(self) -> float | None:
+        return None if self.time_limit is None else self.t0 + self.time_limit
+
+    def time_left(self) -> float | None:
+        return None if self.time_limit is None else self.deadline - time.perf_counter()
+
+    def out_of_time(self) -> bool:
+        return self.time_limit is not None and time.perf_counter() >= self.deadline
+
+    # ------------------------------------------------------------ safety
+    def check(self, z: Layout) -> Check:
+        """Exact safety of ``z`` (see :class:`Check`). Certificates of pairs whose
+        Lemma-1 end conditions fail (solver tolerance) are replaced by the
+        scaled Theorem-1 certificates of the point's own covariances; the
+        others are kept (they are well scaled for the next convex step)."""
+        D = self.model.data
+        try:
+            path = self.model.to_path(z)
+            tm = transition_minimiser(path.x[:-1], path.P[:-1], path.x[1:], path.transition_noise, self.hazards)
+            start, end = self.model.transition_margins(z)
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+            return Check(z, float("nan"), float("nan"))
+        out = z
+        bad = ~((start >= 0) & (end >= 0))
+        if np.any(bad):
+            out = z.copy()
+            lam = certificates(self.scenario, path, self.hazards) * D.sigma
+            out.lam = np.where(bad[..., None], lam, z.lam)
+        dist = float(np.min(tm.dist2) - D.chi2) if np.all(np.isfinite(tm.dist2)) else float("nan")
+        return Check(out, dist, float(np.min(self.model.target_margins(out))))
+
+    def repair(self, chk: Check) -> Check | None:
+        """Restore exact feasibility lost to solver tolerance (violations ~1e-7).
+
+        Adds sensing eta Y_k at every step (each posterior shrinks by 1 / (1 + eta))
+        and re-derives the priors (Lemma 2): every ellipse after the first
+        transition shrinks, clearances and target margins grow, at an
+        information cost of about alpha/2 K d eta. Tries eta from 10x the
+        deficit up to 1e-3; None when that does not suffice."""
+        D = self.model.data
+        deficit = max(-chk.margin / D.chi2, -chk.target, 0.0)
+        if not np.isfinite(deficit):
+            return None
+        eta = max(10 * deficit, 1e-9)
+        z = chk.point
+        while eta <= 1e-3:
+            cand = z.copy()
+            cand.S[1:] = cand.S[1:] + eta * z.Y[1:]
+            new = self.check(self.model.tighten(cand))
+            if new.safe:
+                return new
+            eta *= 10
+        return None
+
+    # ----------------------------------------------------------- history
+    def record(self, rec: IterationRecord, point: Layout | None = None) -> bool:
+        """Append one iteration; keep ``point`` when the record is accepted
+        (an exactly safe candidate for the answer). Returns True when the
+        method should stop (the user's callback asked, or time is up)."""
+        self.history.append(rec)
+        if point is not None and rec.accepted:
+            self.points[rec.iteration] = point
+        if self.callback is not None and self.callback(rec):
+            self.stop_requested = True
+        return self.stop_requested or self.out_of_time()
+
+    def progress_bar(self, desc: str) -> Any:
+        """A tqdm bar over ``max_iter`` when progress was asked for, else None."""
+        if not self.progress:
+            return None
+        from tqdm.auto import tqdm
+
+        return tqdm(total=self.max_iter, desc=desc, unit="it")

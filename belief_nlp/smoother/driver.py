@@ -1,0 +1,206 @@
+"""``smooth``: the one entry point of every smoothing method, and the shared
+driver that makes them report alike.
+
+The driver owns what is common: argument checks, the warm start, the model,
+the time budget (it starts before the warm start), the exact safety check
+(:meth:`SmoothingProblem.check`), independent verification, the choice of
+the answer and the :class:`SmoothResult`. A method only iterates.
+
+One meaning for every method (docs/architecture.md, "The contract"):
+* ``max_iter`` -- the method's iterations in total (CCP steps, NLP solver
+  iterations), restarts included; None = the method's own default;
+* ``tol`` -- relative optimality tolerance: CCP stops when a step lowers the
+  cost by less than tol (relative); NLP solvers get it as their own
+  (scaled, relative) KKT tolerance;
+* ``status`` -- one of :data:`STATUSES`; ``success`` only for "converged";
+* ``accepted`` (history) -- the iterate passed the method's feasibility test.
+The answer is the method's point when it is exactly safe, passes
+:func:`belief_nlp.verify` and costs no more than the warm start; otherwise
+the lowest-cost accepted iterate that does, at worst the warm start, with an
+honest status.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import ValidationError
+from ..model import BeliefModel, Layout
+from ..path import BeliefPath
+from ..scenario import Scenario, load_scenario
+from .context import Outcome, SmoothingProblem
+from .registry import Method, resolve_method
+from .result import STATUSES, SmoothResult
+from .warmstart import WarmStart, warm_start
+
+__all__ = ["smooth"]
+
+log = logging.getLogger("belief_nlp.smoother")
+
+MAX_K = 2000
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+def _is_num(v: Any) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+def _check_args(max_iter, tol, alpha, time_limit, K, solver_options, callback) -> None:
+    if max_iter is not None and (not _is_int(max_iter) or max_iter < 1):
+        raise ValidationError("max_iter", f"must be None or a positive integer, got {max_iter!r}")
+    if not _is_num(tol) or not (0 < tol < 1):
+        raise ValidationError("tol", f"must be a number in (0, 1), got {tol!r}")
+    if alpha is not None and (not _is_num(alpha) or not math.isfinite(alpha) or alpha < 0):
+        raise ValidationError("alpha", f"must be None or a finite number >= 0, got {alpha!r}")
+    if time_limit is not None and (not _is_num(time_limit) or not math.isfinite(time_limit) or time_limit <= 0):
+        raise ValidationError("time_limit", f"must be None or a finite number > 0, got {time_limit!r}")
+    if K is not None and (not _is_int(K) or not 1 <= K <= MAX_K):
+        raise ValidationError("K", f"must be None or an integer in [1, {MAX_K}], got {K!r}")
+    if solver_options is not None and not isinstance(solver_options, dict):
+        raise ValidationError("solver_options", f"must be a dict, got {type(solver_options).__name__}")
+    if callback is not None and not callable(callback):
+        raise ValidationError("callback", f"must be callable, got {type(callback).__name__}")
+
+
+def _scenario(scenario: Any) -> Scenario:
+    if isinstance(scenario, str):
+        return load_scenario(scenario)
+    if not isinstance(scenario, Scenario):
+        raise ValidationError("scenario", f"must be a Scenario or a scenario name/file, got {type(scenario).__name__}")
+    return scenario
+
+
+def _path(path: Any) -> BeliefPath | WarmStart:
+    if isinstance(path, (BeliefPath, WarmStart)):
+        return path
+    inner = getattr(path, "path", None)       # PlanResult, SmoothResult
+    if isinstance(inner, BeliefPath):
+        return inner
+    raise ValidationError("path", f"must be a BeliefPath, a WarmStart or a result with a .path, "
+                                  f"got {type(path).__name__}")
+
+
+def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method = "ccp", K: int | None = None,
+           max_iter: int | None = None, tol: float = 1e-4, solver: str | None = None, alpha: float | None = None, *,
+           time_limit: float | None = None, solver_options: dict | None = None, keep_iterates: bool = False,
+           progress: bool = False, sensing: str = "minimal", callback: Callable | None = None,
+           **options: Any) -> SmoothResult:
+    """Smooth a feasible belief path toward a local optimum of the paper's problem.
+
+    Parameters
+    ----------
+    scenario : Scenario, or a built-in name / scenario file.
+    path : any feasible BeliefPath (planner output, file, hand-made), a
+        PlanResult or SmoothResult (its path), or a :class:`WarmStart`.
+    method : a name from :func:`available_methods` ("ccp": convex-concave
+        procedure, paper section IV; "ipopt": the exact NLP by IPOPT), a
+        registered :class:`Method`, or a callable ``fn(problem, **options)``
+        returning an :class:`Outcome`.
+    K : horizon; None = one step per path edge (see :func:`warm_start`).
+    max_iter : iteration limit; None = the method's own default.
+    tol : relative optimality tolerance (module doc).
+    solver : the method's solver (CCP: any installed CVXPY solver with PSD and
+        exponential cones, default CLARABEL); None = the method's default.
+    alpha : information weight; None = the scenario's.
+    time_limit : wall-time budget in seconds, warm start and model build included.
+    solver_options : passed to the solver.
+    keep_iterates : also return the path of every accepted iterate.
+    progress : show a progress bar.
+    sensing : how the warm start sets covariances ("minimal" or "path").
+    callback : ``callback(record)`` after every iteration; returning True stops.
+    **options : the method's own options (``bn.available_methods()``;
+        ``get_method(name).options`` documents them).
+
+    Returns
+    -------
+    SmoothResult: its path is always exactly safe and independently verified,
+    never costlier than the warm start; ``success`` when the method converged.
+    """
+    t0 = time.perf_counter()
+    scenario = _scenario(scenario)
+    path = _path(path)
+    m = resolve_method(method)
+    _check_args(max_iter, tol, alpha, time_limit, K, solver_options, callback)
+    opts = m.validate(options)
+    if solver is not None and not isinstance(solver, str):
+        raise ValidationError("solver", f"must be a solver name, got {type(solver).__name__}")
+    solver_name = solver if solver is not None else m.default_solver
+    if m.check_solver is not None and solver_name is not None:
+        problem = m.check_solver(solver_name)
+        if problem:
+            raise ValidationError("solver", problem)
+    if isinstance(path, WarmStart):
+        if K is not None and K != path.K:
+            raise ValidationError("K", f"the given warm start has K = {path.K}, not {K}")
+        warm = path
+    else:
+        warm = warm_start(scenario, path, K=K, sensing=sensing)
+    model = BeliefModel(scenario, warm.K, alpha)
+    problem = SmoothingProblem(scenario, warm, model, max_iter=m.max_iter if max_iter is None else int(max_iter),
+                               tol=tol, time_limit=time_limit, t0=t0, solver=solver_name,
+                               solver_options=solver_options or {}, progress=progress,
+                               keep_iterates=keep_iterates, callback=callback, method=m.name)
+    t_setup = time.perf_counter() - t0
+    outcome = m.run(problem, **opts)
+    if not isinstance(outcome, Outcome) or outcome.status not in STATUSES:
+        raise ValidationError("method", f"{m.name!r} returned {outcome!r}; a method returns an Outcome "
+                                        f"with a status from {sorted(STATUSES)}")
+    return _finish(problem, outcome, m, t_setup)
+
+
+def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: float) -> SmoothResult:
+    """Choose the answer (module doc) and build the result."""
+    from ..verify import verify
+
+    model, sc = problem.model, problem.scenario
+    status, message = outcome.status, outcome.message
+    candidates: list[tuple[float, int, Layout, str]] = []
+    if outcome.point is not None:
+        chk = problem.check(outcome.point)
+        if chk.safe:
+            candidates.append((model.cost(chk.point)[0], -1, chk.point, "the method's answer"))
+        elif status == "converged":
+            status = "infeasible_iterate"
+            message = f"{message}; its answer failed the exact safety check ({STATUSES[status]})"
+    for it, z in problem.points.items():
+        candidates.append((model.cost(z)[0], it, z, f"iterate {it}"))
+    candidates.sort(key=lambda c: (c[0], c[1] != -1))
+    intended = candidates[0][3] if candidates else "the warm start"
+    answer, origin = problem.start, "the warm start"
+    answer_cost = problem.cost0
+    for cost, it, z, where in candidates:
+        if not np.isfinite(cost):
+            continue
+        if cost > problem.cost0 * (1 + 1e-12) + 1e-15:
+            break
+        if verify(sc, model.to_path(z)).safe:
+            answer, origin, answer_cost = z, where, cost
+            break
+        log.warning("%s failed independent verification; trying the next candidate", where)
+    if status == "converged" and origin != intended:
+        status = "above_start" if candidates and candidates[0][0] > problem.cost0 else "infeasible_iterate"
+        message = f"{message}; {origin} is returned ({STATUSES[status]})"
+    solver = outcome.solver or problem.solver or ""
+    meta = {"method": m.name, "solver": solver, "alpha": model.data.alpha}
+    path = model.to_path(answer, meta=meta)
+    report = verify(sc, path)
+    c, ctrl, info = model.cost(answer)
+    iterates = None
+    if problem.keep_iterates:
+        iterates = [model.to_path(problem.start)] + [model.to_path(z) for _, z in sorted(problem.points.items())]
+    hist = problem.history
+    nit = len(hist) - 1
+    return SmoothResult(
+        path=path, cost=c, control=ctrl, information=info, success=status == "converged", status=status,
+        message=message, nit=nit, history=hist, method=m.name, solver=solver, alpha=model.data.alpha,
+        timings={"setup": t_setup, "solver": float(sum(h.solve_time for h in hist)),
+                 "total": time.perf_counter() - problem.t0},
+        verification=report.to_dict(), initial_cost=problem.cost0, iterates=iterates, stats=dict(outcome.stats))

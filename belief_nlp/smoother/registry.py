@@ -1,0 +1,129 @@
+"""Smoothing methods as plug-ins: each registers itself with a name, its own
+default iteration limit, an option schema and a ``run`` function.
+
+Adding a method is one new file that calls :func:`register` (see
+``belief_nlp/methods/ccp.py``) plus its tests; the CLI, :func:`compare` and
+studies list :func:`available_methods` and need no edit. :func:`smooth`
+also takes a plain callable, as ``scipy.optimize.minimize`` does.
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from ..errors import ValidationError
+
+__all__ = ["Option", "Method", "register", "available_methods", "get_method", "resolve_method"]
+
+
+@dataclass(frozen=True)
+class Option:
+    """One method option: its default, a check and a line of documentation.
+
+    ``check(value)`` returns an error text (the problem) or None when the
+    value is fine."""
+
+    default: Any
+    doc: str
+    check: Callable[[Any], str | None] | None = None
+
+
+@dataclass(frozen=True)
+class Method:
+    """A registered smoothing method.
+
+    name : what ``smooth(method=...)`` takes.
+    run : ``run(problem, **options) -> Outcome`` (see
+        :class:`~belief_nlp.smoother.context.SmoothingProblem`).
+    max_iter : default iteration limit (what one iteration is: ``iteration``).
+    options : {name: :class:`Option`}, validated before any work.
+    description, iteration : one line each, for listings.
+    solvers : the ``solver=`` values it accepts (empty: it takes none);
+        ``default_solver`` the one used when ``solver`` is None.
+    check_solver : optional hook ``(solver) -> error text or None`` for
+        methods whose solvers are discovered at run time.
+    """
+
+    name: str
+    run: Callable[..., Any]
+    max_iter: int
+    options: dict = field(default_factory=dict)
+    description: str = ""
+    iteration: str = "iteration"
+    default_solver: str | None = None
+    check_solver: Callable[[str], str | None] | None = None
+
+    def validate(self, options: dict) -> dict:
+        """Options with defaults filled in; unknown names and bad values raise
+        :class:`ValidationError` naming the option."""
+        unknown = sorted(set(options) - set(self.options))
+        if unknown:
+            known = ", ".join(sorted(self.options)) or "none"
+            raise ValidationError(unknown[0], f"is not an option of method {self.name!r} (its options: {known})")
+        out = {}
+        for name, opt in self.options.items():
+            value = options.get(name, opt.default)
+            if name in options and opt.check is not None:
+                problem = opt.check(value)
+                if problem:
+                    raise ValidationError(name, problem)
+            out[name] = value
+        return out
+
+
+_REGISTRY: dict[str, Method] = {}
+
+
+def register(method: Method, *, replace: bool = False) -> Method:
+    """Add a method to the registry (``replace=True`` to redefine a name)."""
+    if not isinstance(method, Method):
+        raise ValidationError("method", f"must be a Method, got {type(method).__name__}")
+    if not method.name or not method.name.replace("_", "").replace("-", "").isalnum():
+        raise ValidationError("method.name", f"must be a non-empty word, got {method.name!r}")
+    if method.name in _REGISTRY and not replace and _REGISTRY[method.name] is not method:
+        raise ValidationError("method.name", f"{method.name!r} is registered already (pass replace=True)")
+    _REGISTRY[method.name] = method
+    return method
+
+
+def unregister(name: str) -> None:
+    """Remove a method (tests register toy methods and remove them again)."""
+    _REGISTRY.pop(name, None)
+
+
+def _load_builtins() -> None:
+    from .. import methods  # noqa: F401 - importing registers the built-in methods
+
+
+def available_methods() -> list[str]:
+    """Names of the registered smoothing methods, built-ins first."""
+    _load_builtins()
+    return list(_REGISTRY)
+
+
+def get_method(name: str) -> Method:
+    """The registered method ``name`` (our error lists the known ones)."""
+    _load_builtins()
+    if not isinstance(name, str) or name not in _REGISTRY:
+        raise ValidationError("method", f"must be one of {available_methods()} or a callable, got {name!r}")
+    return _REGISTRY[name]
+
+
+def resolve_method(method: str | Callable | Method) -> Method:
+    """A Method from a name, a Method, or a callable ``fn(problem, **options)``
+    (its keyword parameters with defaults become its options)."""
+    if isinstance(method, Method):
+        return method
+    if isinstance(method, str):
+        return get_method(method)
+    if callable(method):
+        opts = {}
+        for p in list(inspect.signature(method).parameters.values())[1:]:
+            if p.default is not inspect.Parameter.empty:
+                opts[p.name] = Option(p.default, "")
+        name = getattr(method, "__name__", "custom")
+        return Method(name=name, run=method, max_iter=getattr(method, "max_iter", 100), options=opts,
+                      description=(inspect.getdoc(method) or "").split("\n")[0])
+    raise ValidationError("method", f"must be a method name, a Method or a callable, got {type(method).__name__}")

@@ -1,0 +1,72 @@
+"""Every registered smoothing method -- the built-ins and a toy one added the
+way a user adds one (tests/toy_method.py, one file) -- passes one contract."""
+
+from __future__ import annotations
+
+import pytest
+
+import belief_nlp as bn
+from belief_nlp.smoother.conformance import check_method
+from belief_nlp.smoother.registry import unregister
+
+import toy_method  # noqa: F401 - registers "sensing_trim"
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _toy_registered():
+    bn.register_method(toy_method.METHOD, replace=True)
+    yield
+    unregister("sensing_trim")
+
+
+def test_the_registry_lists_the_builtins_and_the_toy_method():
+    names = bn.available_methods()
+    assert names[:2] == ["ccp", "ipopt"] and "sensing_trim" in names
+    assert bn.get_method("ccp").max_iter == 50 and bn.get_method("ipopt").max_iter == 3000
+
+
+@pytest.mark.parametrize("name", ["ccp", "ipopt", "sensing_trim"])
+def test_conformance(name):
+    check_method(name)
+
+
+def test_a_plain_callable_is_a_method():
+    """smooth(method=fn) as scipy.optimize.minimize(method=fn): fn(problem, **options)."""
+    def polish(problem, step=0.5):
+        z = problem.start.copy()
+        z.S[1:] *= 1 - step
+        chk = problem.check(problem.model.tighten(z))
+        ok = chk.safe and problem.model.cost(chk.point)[0] < problem.cost0
+        c = problem.model.cost(chk.point if ok else problem.start)
+        problem.record(bn.IterationRecord(1, *c, accepted=ok), chk.point if ok else None)
+        return bn.Outcome("converged", "one trim")
+
+    check_method(polish)
+    sc, path = bn.smoother.conformance.small_problem()
+    res = bn.smooth(sc, path, method=polish, step=0.25)
+    assert res.method == "polish" and res.cost <= res.initial_cost
+
+
+def test_a_method_that_reports_success_above_the_start_is_corrected():
+    """The driver never reports success above the warm start, whatever a method says."""
+    def liar(problem):
+        z = problem.start.copy()
+        z.S[1:] *= 10.0                                  # safe (more sensing), but dearer
+        return bn.Outcome("converged", "I converged", point=problem.model.tighten(z))
+
+    sc, path = bn.smoother.conformance.small_problem()
+    res = bn.smooth(sc, path, method=liar)
+    assert not res.success and res.status == "above_start"
+    assert res.cost == pytest.approx(res.initial_cost)
+
+
+def test_a_method_answer_that_is_unsafe_is_never_returned():
+    def reckless(problem):
+        z = problem.start.copy()
+        z.S[1:] = 0.0                                    # no sensing: the ellipses grow into obstacles
+        z.x[1:] = z.x[1:] * 0 + z.x[:1]                  # and every mean at the start
+        return bn.Outcome("converged", "done", point=problem.model.tighten(z))
+
+    sc, path = bn.smoother.conformance.small_problem()
+    res = bn.smooth(sc, path, method=reckless)
+    assert not res.success and res.status == "infeasible_iterate" and res.safe
