@@ -24,12 +24,12 @@ Functions (inputs -> outputs)
                        + 2 lam^T (A x - b) - chi2; >= 0 for some lam >= 0 iff the
                        ellipse E(x, P) misses {A y <= b}
 ``transition_clearance`` (x_prev, P_prev, x_next, W, lam[, A, b]) -> (margin_start, margin_end)
-                       Theorem 1 with errata 5: the two ends with one common lam,
+                       Theorem 1 with C5: the two ends with one common lam,
                        P_prev at the start and P_prev + W at the end; both >= 0 for
                        some lam >= 0 iff the whole transition is clear
 ``target_containment`` (x, P) -> (margins)                  per target face
                        b_n - a_n^T x - chi sqrt(a_n^T P a_n) (metres), final_cond
-                       with errata 4
+                       with C4
 
 :func:`export_functions` returns them all for a scenario (A, b and chi2 fixed,
 one clearance function per hazard). :func:`dompc_constraints` and
@@ -48,6 +48,7 @@ import casadi as ca
 import numpy as np
 
 from .errors import SolverError, ValidationError
+from .model import terms
 from .path import BeliefPath
 from .scenario import Scenario, load_scenario, scenario_from_dict
 
@@ -62,10 +63,6 @@ __all__ = [
 ACADOS_INFTY = 1e10
 
 
-def _sym(M: ca.SX) -> ca.SX:
-    return 0.5 * (M + M.T)
-
-
 def _check_dim(d: Any) -> int:
     if not isinstance(d, (int, np.integer)) or isinstance(d, bool) or d < 1:
         raise ValidationError("d", f"must be a positive integer, got {d!r}")
@@ -78,7 +75,7 @@ def belief_predict(d: int = 2, name: str = "belief_predict") -> ca.Function:
     d = _check_dim(d)
     P = ca.SX.sym("P", d, d)
     W = ca.SX.sym("W", d, d)
-    return ca.Function(name, [P, W], [P + W], ["P", "W"], ["P_hat"])
+    return ca.Function(name, [P, W], [terms.predict(P, W)], ["P", "W"], ["P_hat"])
 
 
 def belief_update(d: int = 2, name: str = "belief_update") -> ca.Function:
@@ -86,9 +83,7 @@ def belief_update(d: int = 2, name: str = "belief_update") -> ca.Function:
     d = _check_dim(d)
     Ph = ca.SX.sym("P_hat", d, d)
     S = ca.SX.sym("S", d, d)
-    # (P_hat^-1 + S)^-1 = (I + P_hat S)^-1 P_hat: no inverse of a tiny prior
-    P = _sym(ca.solve(ca.SX.eye(d) + Ph @ S, Ph))
-    return ca.Function(name, [Ph, S], [P], ["P_hat", "S"], ["P"])
+    return ca.Function(name, [Ph, S], [terms.update_cov(Ph, S)], ["P_hat", "S"], ["P"])
 
 
 def information_cost(d: int = 2, name: str = "information_cost") -> ca.Function:
@@ -97,7 +92,7 @@ def information_cost(d: int = 2, name: str = "information_cost") -> ca.Function:
     d = _check_dim(d)
     Ph = ca.SX.sym("P_hat", d, d)
     S = ca.SX.sym("S", d, d)
-    return ca.Function(name, [Ph, S], [0.5 * ca.log(ca.det(ca.SX.eye(d) + Ph @ S))], ["P_hat", "S"], ["nats"])
+    return ca.Function(name, [Ph, S], [terms.information_cov(Ph, S)], ["P_hat", "S"], ["nats"])
 
 
 def _fixed_or_inputs(d: int, A: Any, b: Any, n_faces: int | None) -> tuple[ca.SX | ca.DM, ca.SX | ca.DM, list, list]:
@@ -124,11 +119,6 @@ def _clearance_setup(d: Any, chi2: Any, A: Any, b: Any, n_faces: int | None):
     return (d, float(chi2)) + _fixed_or_inputs(d, A, b, n_faces)
 
 
-def _lemma1(x, P, lam, A, b, chi2: float):
-    v = A.T @ lam
-    return -ca.dot(v, P @ v) + 2 * ca.dot(lam, A @ x - b) - chi2
-
-
 def ellipse_clearance(d: int = 2, chi2: float | None = None, A: Any = None, b: Any = None,
                       n_faces: int | None = None, name: str = "ellipse_clearance") -> ca.Function:
     """Lemma-1 clearance of the ellipse E(x, P) from the polytope {A y <= b}.
@@ -143,7 +133,7 @@ def ellipse_clearance(d: int = 2, chi2: float | None = None, A: Any = None, b: A
     x = ca.SX.sym("x", d)
     P = ca.SX.sym("P", d, d)
     lam = ca.SX.sym("lam", int(A_.shape[0]))
-    m = _lemma1(x, P, lam, A_, b_, chi2)
+    m = terms.collision_margin_cov(x, P, lam, A_, b_, chi2)
     return ca.Function(name, [x, P, lam] + extra, [m], ["x", "P", "lam"] + extra_names, ["margin"])
 
 
@@ -156,7 +146,7 @@ def transition_clearance(d: int = 2, chi2: float | None = None, A: Any = None, b
     ends -- and A, b unless fixed here. Outputs ``margin_start`` (Lemma 1 at
     x_prev, P_prev) and ``margin_end`` (at x_next, P_prev + W); the whole
     transition x(s), P(s) = P_prev + s W, s in [0, 1], is clear iff both are
-    >= 0 for some lam >= 0 (Theorem 1 with errata 5).
+    >= 0 for some lam >= 0 (Theorem 1 with C5).
     """
     d, chi2, A_, b_, extra, extra_names = _clearance_setup(d, chi2, A, b, n_faces)
     x0 = ca.SX.sym("x_prev", d)
@@ -164,8 +154,8 @@ def transition_clearance(d: int = 2, chi2: float | None = None, A: Any = None, b
     x1 = ca.SX.sym("x_next", d)
     W = ca.SX.sym("W", d, d)
     lam = ca.SX.sym("lam", int(A_.shape[0]))
-    m0 = _lemma1(x0, P0, lam, A_, b_, chi2)
-    m1 = _lemma1(x1, P0 + W, lam, A_, b_, chi2)
+    m0 = terms.collision_margin_cov(x0, P0, lam, A_, b_, chi2)
+    m1 = terms.collision_margin_cov(x1, terms.predict(P0, W), lam, A_, b_, chi2)
     return ca.Function(name, [x0, P0, x1, W, lam] + extra, [m0, m1],
                        ["x_prev", "P_prev", "x_next", "W", "lam"] + extra_names, ["margin_start", "margin_end"])
 
@@ -182,9 +172,7 @@ def target_containment(A: Any, b: Any, chi2: float, name: str = "target_containm
     d = A.shape[1]
     x = ca.SX.sym("x", d)
     P = ca.SX.sym("P", d, d)
-    Ad = ca.DM(A)
-    aPa = ca.sum2((Ad @ P) * Ad)                        # a_n^T P a_n for every face
-    m = ca.DM(b) - Ad @ x - ca.sqrt(float(chi2) * aPa)
+    m = ca.vertcat(*[terms.target_margin_cov(x, P, ca.DM(a), float(bn), float(chi2)) for a, bn in zip(A, b)])
     return ca.Function(name, [x, P], [m], ["x", "P"], ["margins"])
 
 
@@ -253,8 +241,8 @@ def clearance_margins(scenario: Scenario, x_prev, P_prev, x_next, lams: Sequence
     for h, lam in zip(scenario.hazards, lams):
         s = _slug(h.name)
         m0, m1 = funcs[f"transition_{s}"](x_prev, P_prev, x_next, W, lam)
-        names += [f"{s}_start", f"{s}_end"]
-        rows += [m0, m1]
+        names += [f"{s}_start", f"{s}_end"] + [f"{s}_lam_{f}" for f in range(h.n_faces)]
+        rows += [m0, m1, ca.vec(lam)]
     if x_final is not None:
         tm = funcs["target_containment"](x_final, P_final)
         names += [f"target_face_{n}" for n in range(scenario.target.n_faces)]
@@ -274,7 +262,7 @@ def dompc_constraints(scenario: Scenario, x_prev, P_prev, x_next, lams: Sequence
             mpc.set_nl_cons(name, expr, ub=ub)
     """
     names, h = clearance_margins(scenario, x_prev, P_prev, x_next, lams, W, x_final, P_final)
-    return [(n, -h[i], -float(margin)) for i, n in enumerate(names)]
+    return [(n, -h[i], -_row_margin(n, margin)) for i, n in enumerate(names)]
 
 
 def acados_constraints(scenario: Scenario, x_prev, P_prev, x_next, lams: Sequence, W=None, x_final=None,
@@ -287,8 +275,12 @@ def acados_constraints(scenario: Scenario, x_prev, P_prev, x_next, lams: Sequenc
     (or the ``_e`` variants at the terminal stage).
     """
     names, h = clearance_margins(scenario, x_prev, P_prev, x_next, lams, W, x_final, P_final)
-    n = len(names) if x_final is None else h.shape[0]
-    return h, np.full(n, float(margin)), np.full(n, ACADOS_INFTY)
+    return h, np.array([_row_margin(n, margin) for n in names]), np.full(len(names), ACADOS_INFTY)
+
+
+def _row_margin(name: str, margin: float) -> float:
+    """Lower bound of a row: ``margin`` for safety margins, 0 for certificate rows."""
+    return 0.0 if "_lam_" in name else float(margin)
 
 
 # ------------------------------------------------------------------- MPC demo

@@ -167,18 +167,20 @@ def test_save_and_load_round_trip(multi, tmp_path):
 
 def test_dompc_and_acados_conventions(multi):
     J = len(multi.hazards)
+    F = sum(h_.n_faces for h_ in multi.hazards)
     x0, P0 = np.array([0.15, 0.5]), 1e-4 * np.eye(2)
     x1 = np.array([0.15, 0.55])
     lams = [geometry.transition_certificate(x0, P0, x1, multi.W, h.A, h.b)[0] for h in multi.hazards]
     names, h = export.clearance_margins(multi, x0, P0, x1, lams, x_final=x1, P_final=P0)
     h = np.asarray(h).ravel()
-    assert len(names) == 2 * J + multi.target.n_faces == h.size
-    assert names[0] == "obstacle_1_start" and names[-1] == f"target_face_{multi.target.n_faces - 1}"
-    # do-mpc: expr <= ub with expr = -margin, ub = -required margin
+    assert len(names) == 2 * J + F + multi.target.n_faces == h.size
+    assert names[:3] == ["obstacle_1_start", "obstacle_1_end", "obstacle_1_lam_0"]
+    assert names[-1] == f"target_face_{multi.target.n_faces - 1}"
+    # do-mpc: expr <= ub with expr = -margin, ub = -required margin (0 for the lam >= 0 rows)
     cons = export.dompc_constraints(multi, x0, P0, x1, lams, margin=0.5)
-    assert [c[0] for c in cons] == names[:2 * J]
-    for (_, expr, ub), m in zip(cons, h):
-        assert float(expr) == pytest.approx(-m) and ub == -0.5
+    assert [c[0] for c in cons] == names[:2 * J + F]
+    for (name, expr, ub), m in zip(cons, h):
+        assert float(expr) == pytest.approx(-m) and ub == (0.0 if "_lam_" in name else -0.5)
     # acados: lh <= h <= uh, one-sided
     hh, lh, uh = export.acados_constraints(multi, x0, P0, x1, lams, x_final=x1, P_final=P0)
     np.testing.assert_allclose(np.asarray(hh).ravel(), h)
@@ -187,7 +189,27 @@ def test_dompc_and_acados_conventions(multi):
     xs = ca.SX.sym("x", 2)
     lam_s = [ca.SX.sym(f"l{j}", h_.n_faces) for j, h_ in enumerate(multi.hazards)]
     hs, _, _ = export.acados_constraints(multi, x0, P0, xs, lam_s)
-    assert isinstance(hs, ca.SX) and hs.shape == (2 * J, 1)
+    assert isinstance(hs, ca.SX) and hs.shape == (2 * J + F, 1)
+
+
+def test_a_belief_inside_an_obstacle_is_never_clear_whatever_the_certificates(multi):
+    """The drift the symbolic-model issue found: a belief at the centroid of
+    obstacle 1 (P = 1e-6 I) with lam = -1e3 scored 'clear'. With the lam >= 0
+    rows shipped in every helper, no certificate satisfies all rows."""
+    ob = multi.obstacles[0]
+    c = ob.vertices.mean(axis=0)
+    P = 1e-6 * np.eye(2)
+    rng = np.random.default_rng(0)
+    for scale in (-1e3, -1.0, 1.0, 1e3):
+        lams = [scale * np.abs(rng.normal(size=h.n_faces)) * (1 if j else np.sign(scale))
+                for j, h in enumerate(multi.hazards)]
+        lams[0] = scale * np.ones(ob.n_faces)
+        names, h = export.clearance_margins(multi, c, P, c, lams)
+        h = np.asarray(h).ravel()
+        rows = [i for i, n in enumerate(names) if n.startswith("obstacle_1_")]
+        assert np.min(h[rows]) < 0, scale
+        hh, lh, _ = export.acados_constraints(multi, c, P, c, lams)
+        assert np.any(np.asarray(hh).ravel()[rows] < lh[rows])
 
 
 def test_bad_arguments(multi):

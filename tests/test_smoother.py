@@ -81,7 +81,7 @@ def test_kalman_relaxation_is_tight_at_the_end(run, request):
 
 
 def test_target_containment_uses_the_corrected_sign(paper_run):
-    """errata 4: [[b - a^T x_K, 1], [1, gamma C]] >= 0. With the printed top-left
+    """C4: [[b - a^T x_K, 1], [1, gamma C]] >= 0. With the printed top-left
     -b + a^T x_K the final mean would have to leave the target."""
     sc, _, res = paper_run
     p = res.path

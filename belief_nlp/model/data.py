@@ -72,7 +72,7 @@ class ProblemData:
 
     @cached_property
     def Q1(self) -> np.ndarray:
-        """Fixed prior information of step 1, (P0 + W)^-1 (errata 8)."""
+        """Fixed prior information of step 1, (P0 + W)^-1 (C8)."""
         return np.linalg.inv(self.P0 + self.W)
 
 

@@ -125,6 +125,13 @@ class BeliefModel:
         return float(np.max(np.linalg.norm(r, axis=(1, 2)) / np.linalg.norm(Pq, axis=(1, 2))))
 
     # ------------------------------------------------------ conversions
+    def covariances(self, z: Layout) -> np.ndarray:
+        """Posterior covariances (K+1, d, d) in scaled units: P_0, then Y_k^-1."""
+        P = np.empty_like(z.S)
+        P[0] = self.data.P0
+        P[1:] = sym(np.linalg.inv(z.Y[1:]))
+        return P
+
     def tighten(self, z: Layout) -> Layout:
         """Replace Q by the Kalman recursion from S (Lemma 2): stays feasible
         (every ellipse shrinks) and never increases the cost."""

@@ -21,7 +21,8 @@ import casadi as ca
 __all__ = [
     "bilinear", "quad", "quad_inv", "h1_lmi", "h2", "collision_margin_inv", "collision_margin_cov",
     "kalman_lmi", "kalman_residual", "logdet", "logdet_epigraph_lmi", "target_lmis",
-    "target_margin", "target_margin_sq", "control", "information",
+    "target_margin", "target_margin_cov", "target_margin_sq", "control", "information", "predict", "update_cov",
+    "information_cov",
 ]
 
 
@@ -102,6 +103,11 @@ def target_margin(x, Y, a, bt, chi2):
     return bt - ca.dot(a, x) - ca.sqrt(chi2 * quad_inv(a, Y))
 
 
+def target_margin_cov(x, P, a, bt, chi2):
+    """The same margin with the final covariance P: bt - a^T x - chi sqrt(a^T P a)."""
+    return bt - ca.dot(a, x) - ca.sqrt(chi2 * quad(a, P))
+
+
 def target_margin_sq(x, Y, a, bt, chi2):
     """A smooth form defined at every iterate: (bt - a^T x) |bt - a^T x| - chi2 a^T Y^-1 a
     (length^2); >= 0 exactly when target_margin >= 0 (no square root of a
@@ -118,3 +124,21 @@ def control(x_prev, x):
 def information(Y, Q):
     """1/2 (log det Y_k - log det Q_k) nats: concave minus concave (eq. main_doc)."""
     return 0.5 * (logdet(Y) - logdet(Q))
+
+
+def predict(P, W):
+    """Prior covariance after one step, P + W (paper eq. 2)."""
+    return P + W
+
+
+def update_cov(P_hat, S):
+    """Posterior covariance (P_hat^-1 + S)^-1, computed as (I + P_hat S)^-1 P_hat so
+    that a (nearly) singular prior is never inverted; symmetrised."""
+    P = ca.solve(ca.DM.eye(P_hat.shape[0]) + ca.mtimes(P_hat, S), P_hat)
+    return 0.5 * (P + P.T)
+
+
+def information_cov(P_hat, S):
+    """information(Q + S, Q) with Q = P_hat^-1, as 1/2 log det(I + P_hat S)
+    (matrix determinant lemma; no inverse of the prior)."""
+    return 0.5 * logdet(ca.DM.eye(P_hat.shape[0]) + ca.mtimes(P_hat, S))

@@ -85,6 +85,10 @@ class SmoothingProblem:
         self.callback = callback
         self.method = method
         self.hazards = PolytopeSet.build(scenario.hazards)
+        # the same hazards in the model's scaled units: the exact check runs there
+        # (squared Mahalanobis distances are unit-free), no SI round trip per iterate
+        s = model.data.sigma
+        self.hazards_scaled = PolytopeSet.build([(h.A, h.b / s) for h in scenario.hazards])
         chk = self.check(model.tighten(model.from_path(warm.path, warm.lam)))
         self.start = chk.point
         self.cost0, ctrl0, info0 = model.cost(self.start)
@@ -112,8 +116,11 @@ class SmoothingProblem:
         others are kept (they are well scaled for the next convex step)."""
         D = self.model.data
         try:
-            path = self.model.to_path(z)
-            tm = transition_minimiser(path.x[:-1], path.P[:-1], path.x[1:], path.transition_noise, self.hazards)
+            if not (np.all(np.isfinite(z.x)) and np.all(np.isfinite(z.S)) and np.all(np.isfinite(z.Q))):
+                raise ValueError("non-finite point")
+            P = self.model.covariances(z)
+            W = np.broadcast_to(D.W, P[1:].shape)
+            tm = transition_minimiser(z.x[:-1], P[:-1], z.x[1:], W, self.hazards_scaled)
             start, end = self.model.transition_margins(z)
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             return Check(z, float("nan"), float("nan"))
@@ -121,7 +128,7 @@ class SmoothingProblem:
         bad = ~((start >= 0) & (end >= 0))
         if np.any(bad):
             out = z.copy()
-            lam = certificates(self.scenario, path, self.hazards) * D.sigma
+            lam = certificates(self.scenario, self.model.to_path(z), self.hazards) * D.sigma
             out.lam = np.where(bad[..., None], lam, z.lam)
         dist = float(np.min(tm.dist2) - D.chi2) if np.all(np.isfinite(tm.dist2)) else float("nan")
         return Check(out, dist, float(np.min(self.model.target_margins(out))))
