@@ -1,0 +1,95 @@
+"""``belief-nlp plan``: run IG-RRT* and write the plan and its figures.
+
+:func:`_plan` is also how ``smooth``, ``compare`` (without ``--path``) and
+``demo`` obtain their paths.
+"""
+
+from __future__ import annotations
+
+import time
+
+from .common import EXIT_OK, _fail, _load_scenario, _one_line, _Run, _wrap, log
+from .figures import _no_path_panel, _panels, _save_fig
+from .parser import _output_args, _planner_args, _positive_float, _scenario_arg
+
+
+def add_parser(sub) -> None:
+    """Add the ``plan`` subcommand to the subparsers ``sub``."""
+    pp = sub.add_parser(
+        "plan", help="plan a minimum-sensing belief path with IG-RRT*",
+        description="Run IG-RRT* on a scenario. Writes OUT/plan.json (or .npz): a PlanResult that "
+                    "belief_nlp.planner.PlanResult.load reads back, with the path, the tree and the "
+                    "best cost per node; OUT/plan.png (tree, path and confidence ellipses) and "
+                    "OUT/plan_cost.png (best cost against nodes). Exit code 3 when no path is found.",
+        epilog="Example:\n  belief-nlp plan paper-multi --nodes 500 --alpha 0.1 --seed 0 --out out")
+    _scenario_arg(pp)
+    _planner_args(pp)
+    pp.add_argument("--time-limit", type=_positive_float, default=None, metavar="SECONDS",
+                    help="stop growing the tree after this wall time")
+    _output_args(pp)
+    pp.set_defaults(func=_cmd_plan)
+
+
+def _cmd_plan(run: _Run) -> int:
+    a = run.args
+    sc = _load_scenario(a.scenario, a.alpha)
+    run.prepare_out()
+    res = _plan(run, sc)
+    run.list_written()
+    if not res.success:
+        return _plan_failed(res)
+    run.say(f"plan: cost {res.cost:.6g} (length {res.travel:.4g} m + {res.alpha:g} x information "
+            f"{res.information:.4g} {res.info_unit}), {res.path.K} steps, first solution at node "
+            f"{res.first_solution_iteration}")
+    return EXIT_OK
+
+
+def _plan(run: _Run, sc, *, label: str = "", stem: str = "plan", figures: bool = True):
+    """Plan with the args' planner options; write the result file (+ figures).
+    Returns the PlanResult (successful or not)."""
+    from ..planner import plan
+
+    a = run.args
+    log.info("%splanning on %s with IG-RRT*: %d nodes, seed %d, alpha %g, %s noise", label, sc.name or "scenario",
+             a.nodes, a.seed, sc.alpha, a.noise)
+    t0 = time.perf_counter()
+    extra = {} if a.max_radius is None else {"max_radius": a.max_radius}
+    res = plan(sc, n_nodes=a.nodes, seed=a.seed, metric=a.metric, noise=a.noise, time_limit=a.time_limit,
+               branch_and_bound=a.branch_and_bound, progress=not run.quiet, **extra)
+    elapsed = time.perf_counter() - t0
+    run.wrote(res.save(run.out / f"{stem}.{a.format}"))
+    if res.success:
+        log.info("%splan: cost %.5g (%d steps, length %.3f m) in %.1f s", label, res.cost, res.path.K,
+                 res.path.length, elapsed)
+    else:
+        log.info("%splanning failed after %.1f s: %s", label, elapsed, res.message)
+    if figures:
+        _plan_figures(run, sc, res, stem)
+    return res
+
+
+def _plan_figures(run: _Run, sc, res, stem: str) -> None:
+    from ..plotting import plot_anytime, plot_belief_path, plot_scenario, plot_tree
+
+    fig, ax = _panels(1, sc.dim, size=5.5)
+    ax = ax[0]
+    if res.tree is not None:
+        plot_tree(sc, res.tree, ax=ax, path=res.path)
+    else:
+        plot_scenario(sc, ax=ax)
+    if res.path is not None:
+        plot_belief_path(sc, res.path, ax=ax, show_scenario=False, legend=sc.dim == 2)
+        ax.set_title(f"IG-RRT* on {sc.name or 'scenario'}: {len(res.tree) if res.tree is not None else '?'} nodes, "
+                     f"cost {res.cost:.4g}", fontsize=9)
+    else:
+        ax.set_title(f"IG-RRT* on {sc.name or 'scenario'}: no path", fontsize=9)
+        _no_path_panel(ax, _wrap(res.message, 40))
+    _save_fig(run, fig, f"{stem}.png")
+    fig, ax = plot_anytime(res, xlabel="nodes in the tree", ylabel="best planner cost")
+    ax.set_title("IG-RRT* best cost", fontsize=9)
+    _save_fig(run, fig, f"{stem}_cost.png")
+
+
+def _plan_failed(res) -> int:
+    return _fail(f"planning failed: {_one_line(res.message)} (try more --nodes, another --seed or a larger "
+                 f"--max-radius)")
