@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import time
+import warnings
 from pathlib import Path
 from typing import Any, Callable
 
@@ -139,7 +140,9 @@ def _solve(step: CompiledProblem, solver: str, options: dict, retry: bool) -> tu
         opts.update(SOLVER_RETRY[solver])
     opts.update(options)
     try:
-        step.problem.solve(solver=solver, **opts)
+        with warnings.catch_warnings():       # "may be inaccurate": the status says so, and the exact check decides
+            warnings.simplefilter("ignore", UserWarning)
+            step.problem.solve(solver=solver, **opts)
     except (cp.error.SolverError, ValueError, ArithmeticError) as exc:
         return f"error: {str(exc).splitlines()[0][:120]}", None, 0.0, 0
     st = step.problem.solver_stats

@@ -64,8 +64,8 @@ def split_affine(expr: ca.SX, z: ca.SX, p: ca.SX) -> AffineSplit:
     dep_c = _param_rows(nz, p)
     dep_o = _param_rows(off, p)
     # constant parts: evaluated at any p (they do not depend on it)
-    vals = np.asarray(ca.Function("c", [p], [nz, off])(np.ones(p.numel()))[0]).ravel() if nz.numel() else np.zeros(0)
-    e = np.asarray(ca.Function("o", [p], [off])(np.ones(p.numel()))).ravel()
+    vals = ca.Function("c", [p], [nz])(np.ones(p.numel())).full().ravel() if nz.numel() else np.zeros(0)
+    e = ca.Function("o", [p], [off])(np.ones(p.numel())).full().ravel()
     keep = ~dep_c
     M = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(m, n))
     e = np.where(dep_o, 0.0, e)
@@ -110,7 +110,7 @@ class CompiledProblem:
     def set_point(self, point: Layout, rho_start: np.ndarray, rho_end: np.ndarray) -> None:
         """Set every parameter for the convexification at ``point``."""
         pv = self.layout.params(point, rho_start, rho_end)
-        vals = np.asarray(self.coef_fn(pv)).ravel()
+        vals = self.coef_fn(pv).full().ravel()
         pos = 0
         for par, size in zip(self.coef_params, self.sizes):
             par.value = vals[pos:pos + size]
@@ -142,24 +142,66 @@ class CompiledProblem:
                                self.coef_fn, self.sizes, self.objective, user)
 
 
-def _affine_cvx(cp, z, split: AffineSplit, params: list, outputs: list, sizes: list):
+class _Params:
+    """The CVXPY Parameters of a problem and the map from a point to their values.
+
+    Coefficients that are proportional as functions of p (the same tangent
+    entry in two rows, sqrt(rho) times each face normal, ...) share one
+    Parameter entry times a constant: CVXPY's compiled tensor has a column per
+    Parameter entry, so this keeps the compile small. Proportionality is found
+    by evaluating the expressions at a few random points (two functions of p
+    that agree in ratio at three random points are proportional unless by a
+    coincidence of measure zero)."""
+
+    def __init__(self, p: ca.SX, n_probes: int = 3, seed: int = 0):
+        self.p = p
+        rng = np.random.default_rng(seed)
+        self.probes = rng.uniform(0.5, 1.5, size=(int(p.numel()), n_probes))
+        self.params: list = []
+        self.outputs: list = []
+        self.sizes: list = []
+
+    def vector(self, cp, exprs: ca.SX):
+        """A CVXPY expression (len(exprs),) equal to ``exprs`` at the point set."""
+        f = ca.Function("probe", [self.p], [exprs])
+        V = np.column_stack([f(self.probes[:, i]).full().ravel() for i in range(self.probes.shape[1])])
+        base = V[:, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratios = np.where(base[:, None] != 0, V / base[:, None], V)
+        keys = np.round(ratios, 9)
+        own = base == 0                               # no common scale: a parameter of its own
+        keys[own] = np.nan
+        keys = np.column_stack([keys, np.where(own, np.arange(V.shape[0]), -1)])
+        keys = np.nan_to_num(keys, nan=np.inf)
+        _, first, gid = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        gid = gid.ravel()
+        reps = first
+        n_groups = first.size
+        kappa = np.where(own, 1.0, base / np.where(base[reps[gid]] != 0, base[reps[gid]], 1.0))
+        theta = cp.Parameter(n_groups)
+        self.params.append(theta)
+        self.outputs.append(exprs[reps.tolist()])
+        self.sizes.append(n_groups)
+        if np.allclose(kappa, 1.0) and n_groups == V.shape[0] and np.array_equal(gid, np.arange(n_groups)):
+            return theta
+        return cp.multiply(kappa, theta[gid])
+
+    def function(self) -> ca.Function:
+        return ca.Function("ccp_parameters", [self.p], [ca.vertcat(*self.outputs)])
+
+
+def _affine_cvx(cp, z, split: AffineSplit, params: _Params):
     expr = split.M @ z + split.e
     if split.p_rows.size:
-        c = cp.Parameter(split.p_rows.size)
+        c = params.vector(cp, split.p_coef)
         scatter = sp.csr_matrix((np.ones(split.p_rows.size), (split.p_rows, np.arange(split.p_rows.size))),
                                 shape=(split.m, split.p_rows.size))
         expr = expr + scatter @ cp.multiply(c, z[split.p_cols])
-        params.append(c)
-        outputs.append(split.p_coef)
-        sizes.append(split.p_rows.size)
     if split.o_rows.size:
-        o = cp.Parameter(split.o_rows.size)
+        o = params.vector(cp, split.o_expr)
         scatter = sp.csr_matrix((np.ones(split.o_rows.size), (split.o_rows, np.arange(split.o_rows.size))),
                                 shape=(split.m, split.o_rows.size))
         expr = expr + scatter @ o
-        params.append(o)
-        outputs.append(split.o_expr)
-        sizes.append(split.o_rows.size)
     return expr
 
 
@@ -170,12 +212,10 @@ def compile_problem(form: ConvexForm) -> CompiledProblem:
 
     n = form.layout.blocks.n
     z = cp.Variable(n, name="z")
-    params: list = []
-    outputs: list = []
-    sizes: list = []
+    params = _Params(form.p)
     cons = {}
     for fam in form.families:
-        E = _affine_cvx(cp, z, split_affine(fam.expr, form.z, form.p), params, outputs, sizes)
+        E = _affine_cvx(cp, z, split_affine(fam.expr, form.z, form.p), params)
         if fam.kind == "nonneg":
             cons[fam.name] = cp.constraints.NonNeg(E)
         elif fam.kind == "psd":
@@ -192,18 +232,22 @@ def compile_problem(form: ConvexForm) -> CompiledProblem:
     H = ca.hessian(form.objective, form.z)[0]
     if ca.depends_on(H, form.p) or ca.depends_on(H, form.z):
         raise ValueError("the model objective must be quadratic in z with constant curvature")
-    Hd = np.asarray(ca.evalf(H))
-    act = np.nonzero(np.any(Hd != 0, axis=1))[0]
-    w, V = np.linalg.eigh(Hd[np.ix_(act, act)])
+    Hs = ca.evalf(H)
+    hr, hc = (np.asarray(a, dtype=int) for a in Hs.sparsity().get_triplet())
+    act = np.unique(hr)                                   # variables with curvature (the means)
+    pos = np.full(n, -1)
+    pos[act] = np.arange(act.size)
+    Hd = np.zeros((act.size, act.size))
+    Hd[pos[hr], pos[hc]] = np.array(Hs.nonzeros())
+    w, V = np.linalg.eigh(Hd)
     Fq = (V * np.sqrt(np.maximum(w, 0.0))).T
     grad = ca.substitute(ca.gradient(form.objective, form.z), form.z, ca.DM.zeros(n))
-    q = cp.Parameter(n, name="q")
-    params.append(q)
-    outputs.append(grad)
-    sizes.append(n)
-    obj = 0.5 * cp.sum_squares(Fq @ z[act]) + q @ z
+    dep = _param_rows(grad, form.p)
+    q0 = np.where(dep, 0.0, ca.Function("q0", [form.p], [grad])(np.ones(form.p.numel())).full().ravel())
+    qi = np.nonzero(dep)[0]
+    obj = 0.5 * cp.sum_squares(Fq @ z[act]) + q0 @ z + params.vector(cp, grad[qi.tolist()]) @ z[qi]
     objective = cp.Minimize(obj)
     problem = cp.Problem(objective, list(cons.values()))
-    coef_fn = ca.Function("ccp_parameters", [form.p], [ca.vertcat(*outputs)])
     x_ref = cp.Parameter((form.layout.data.K + 1, form.layout.data.d), name="x_ref")
-    return CompiledProblem(form.layout, problem, z, x_ref, cons, params, coef_fn, sizes, objective)
+    return CompiledProblem(form.layout, problem, z, x_ref, cons, params.params, params.function(), params.sizes,
+                           objective)

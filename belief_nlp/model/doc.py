@@ -119,13 +119,12 @@ def _blocks(D: ProblemData) -> Blocks:
 
 
 def _pick(z: ca.SX, idx: np.ndarray) -> ca.SX:
-    """Symbolic array (as an SX matrix of idx's 2-D shape) of z entries; 0 where idx < 0."""
+    """Symbolic matrix (idx's 2-D shape) of z entries; 0 where idx < 0 (one
+    vectorised selection, no per-entry Python work)."""
     idx = np.atleast_2d(idx)
-    out = ca.SX.zeros(*idx.shape)
-    for (i, j), v in np.ndenumerate(idx):
-        if v >= 0:
-            out[i, j] = z[int(v)]
-    return out
+    n = int(z.numel())
+    flat = np.where(idx < 0, n, idx).ravel(order="F")
+    return ca.reshape(ca.vertcat(z, 0)[flat.tolist()], *idx.shape)
 
 
 def tangent(f: ca.Function, n_lin: int | None = None) -> ca.Function:
@@ -143,6 +142,20 @@ def tangent(f: ca.Function, n_lin: int | None = None) -> ca.Function:
     for a, t in zip(at, to):
         lin = lin + ca.mtimes(ca.jacobian(val, a), ca.vec(t - a))
     return ca.Function(f"{f.name()}_tangent", at + to + data, [lin])
+
+
+def _pair_function(d: int, F: int, chi2: float) -> ca.Function:
+    """One end of one (transition, hazard) pair: the h1 LMI entries and the
+    convexified h2 as a rotated second-order cone (module doc)."""
+    lam, lt, R = ca.SX.sym("lam", F), ca.SX.sym("lam_t", F), ca.SX.sym("R")
+    x, xt, Y = ca.SX.sym("x", d), ca.SX.sym("x_t", d), ca.SX.sym("Y", d, d)
+    A, b, r = ca.SX.sym("A", F, d), ca.SX.sym("b", F), ca.SX.sym("sqrt_rho")
+    bil = tangent(ca.Function("bilinear", [lam, x, A, b], [terms.bilinear(lam, x, A, b)]), 2)
+    h2_lin = R + chi2 - bil(lt, xt, lam, x, A, b)          # h2 with h replaced by its tangent
+    dv = ca.mtimes(A.T, lam - lt)
+    h1 = terms.h1_lmi(R, ca.mtimes(A.T, lam), Y)
+    return ca.Function("collision_pair", [lam, lt, R, x, xt, Y, A, b, r],
+                       [ca.vec(h1), _rsoc(-h2_lin, r * dv - (x - xt) / r)])
 
 
 def _rsoc(w: ca.SX, y: ca.SX) -> ca.SX:
@@ -263,7 +276,7 @@ def convex_form(D: ProblemData, chi2_margin: float = 1e-7) -> ConvexForm:
     S = [None] + [sym_var(B.S[k]) for k in range(1, K + 1)]
     Y = [None] + [Q[k] + S[k] for k in range(1, K + 1)]
     Yt = [None] + [(ca.DM(D.Q1) if k == 1 else Qt[k]) + St[k] for k in range(1, K + 1)]
-    Lam = [[_pick(z, B.lam[k - 1, j][:, None]) for j in range(J)] for k in range(1, K + 1)]
+    Lam = [[_pick(z, B.lam[0, j][:, None]) for j in range(J)]]      # transition 1 (the exact start end)
 
     # ------------------------------------------------------------ objective
     control = D.sigma**2 * sum(terms.control(X[k - 1], X[k]) for k in range(1, K + 1))
@@ -291,37 +304,40 @@ def convex_form(D: ProblemData, chi2_margin: float = 1e-7) -> ConvexForm:
     add("logdet_exp", "exp", 3, [ca.vertcat(z[int(B.u[k, i])], 1, Zk[k][i, i])
                                  for k in range(2, K + 1) for i in range(d)])
 
-    # collision constraints: h1 exactly, h2 with the bilinear term convexified
-    xs, ls, As, bs = (ca.SX.sym("x", d), ca.SX.sym("lam", F), ca.SX.sym("A", F, d), ca.SX.sym("b", F))
-    bil_tangent = tangent(ca.Function("bilinear", [ls, xs, As, bs], [terms.bilinear(ls, xs, As, bs)]), 2)
-    h1_end, h2_end, h1_start, h2_start, first = [], [], [], [], []
+    # collision constraints: h1 exactly, h2 with the bilinear term convexified;
+    # one pair function mapped over every (transition, hazard) end
+    pair = _pair_function(d, F, chi2)
+    Q1 = ca.DM(D.Q1)
+    for name, ks, end in (("end", np.arange(1, K + 1), True), ("start", np.arange(2, K + 1), False)):
+        if ks.size == 0:
+            continue
+        kk = np.repeat(ks, J)                          # transition of each pair
+        jj = np.tile(np.arange(J), ks.size)            # hazard of each pair
+        kx = kk if end else kk - 1                     # the end's time index
+        nb = kk.size
+        lam = _pick(z, B.lam[kk - 1, jj].T)            # F x nb
+        lt = lamt[:, ((kk - 1) * J + jj).tolist()]
+        R = _pick(z, (B.R_end if end else B.R_start)[kk - 1, jj][None, :])
+        x = xt[:, kx.tolist()] + _pick(z, B.x[kx].T)
+        ky = kk if end else kk - 1                     # information matrix at the end: Q_k or Y_{k-1}
+        Yv = _pick(z, np.concatenate(list(B.Q[ky]), axis=1))
+        if not end:
+            Yv = Yv + _pick(z, np.concatenate(list(B.S[ky]), axis=1))
+        Yc = np.concatenate([D.Q1 if k == 1 else np.zeros((d, d)) for k in ky], axis=1)
+        A = ca.DM(np.concatenate(list(D.A[jj]), axis=1))
+        b = ca.DM(D.b[jj].T)
+        r = ca.sqrt((rho_e if end else rho_s)[((kk - 1) * J + jj).tolist()]).T
+        h1, h2 = pair.map(nb)(lam, lt, R, x, xt[:, kx.tolist()], Yv + ca.DM(Yc), A, b, r)
+        fam.append(ConeFamily(f"h1_{name}", "psd", d + 1, nb, ca.vec(h1)))
+        fam.append(ConeFamily(f"h2_{name}", "soc", d + 2, nb, ca.vec(h2)))
+    # k = 1, start end (C8): v^T P0 v <= 2 lam^T (A x0 - b) - chi2, exactly (x0 fixed)
     w0, V0 = np.linalg.eigh(D.P0)
-    Ld = ca.DM(V0 * np.sqrt(np.maximum(w0, 0.0)))        # P0 = Ld Ld^T (P0 may be singular, C8)
-    for k in range(1, K + 1):
-        for j in range(J):
-            A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
-            lam = Lam[k - 1][j]
-            lt = lamt[:, (k - 1) * J + j]
-            dv = ca.mtimes(A.T, lam - lt)
-            for end in (True, False):
-                if not end and k == 1:
-                    # C8: v^T P0 v <= 2 lam^T (A x0 - b) - chi2, exactly (x0 fixed)
-                    w = 0.5 * (terms.bilinear(lam, X[0], A, b) - chi2)
-                    first.append(_rsoc(w, ca.mtimes(Ld.T, ca.mtimes(A.T, lam))))
-                    continue
-                kx = k if end else k - 1
-                R = z[int((B.R_end if end else B.R_start)[k - 1, j])]
-                v = ca.mtimes(A.T, lam)
-                (h1_end if end else h1_start).append(terms.h1_lmi(R, v, Q[k] if end else Y[k - 1]))
-                dx = X[kx] - xt[:, kx] if kx > 0 else ca.SX.zeros(d)
-                h_lin = bil_tangent(lt, xt[:, kx], lam, X[kx], A, b)
-                h2_lin = R + chi2 - h_lin            # h2 with h replaced by its tangent
-                r = ca.sqrt((rho_e if end else rho_s)[(k - 1) * J + j])
-                (h2_end if end else h2_start).append(_rsoc(-h2_lin, r * dv - dx / r))
-    add("h1_end", "psd", d + 1, h1_end)
-    add("h2_end", "soc", d + 2, h2_end)
-    add("h1_start", "psd", d + 1, h1_start)
-    add("h2_start", "soc", d + 2, h2_start)
+    Ld = ca.DM(V0 * np.sqrt(np.maximum(w0, 0.0)))        # P0 = Ld Ld^T (P0 may be singular)
+    first = []
+    for j in range(J):
+        A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
+        lam = Lam[0][j]
+        first.append(_rsoc(0.5 * (terms.bilinear(lam, X[0], A, b) - chi2), ca.mtimes(Ld.T, ca.mtimes(A.T, lam))))
     add("start_exact", "soc", d + 2, first)
     t1, t2 = [], []
     for n in range(N):

@@ -68,8 +68,8 @@ class BeliefModel:
         D = self.data
         K = D.K
         c, i = self.f_step.map(K)(z.x[:-1].T, z.x[1:].T, _hcat(z.Y[1:]), _hcat(z.Q[1:]))
-        control = float(D.sigma**2 * np.sum(np.asarray(c)))
-        info = float(np.sum(np.asarray(i)))
+        control = float(D.sigma**2 * np.sum(c.full()))
+        info = float(np.sum(i.full()))
         return control + D.alpha * info, control, info
 
     def _pairs(self, xs: np.ndarray, Ms: np.ndarray, lam: np.ndarray, f: ca.Function) -> np.ndarray:
@@ -82,7 +82,7 @@ class BeliefModel:
         A = np.tile(D.A, (n, 1, 1))
         out = f.map(m)(np.repeat(xs, J, axis=0).T, _hcat(np.repeat(Ms, J, axis=0)), lam.reshape(m, D.F).T,
                        _hcat(A), np.tile(D.b, (n, 1)).T)
-        return np.asarray(out).reshape(n, J)
+        return out.full().reshape(n, J)
 
     def transition_margins(self, z: Layout) -> tuple[np.ndarray, np.ndarray]:
         """Theorem-1 margins (certificate values) of both ends of every
@@ -100,14 +100,14 @@ class BeliefModel:
         N = D.At.shape[0]
         out = self.f_target.map(N)(np.tile(z.x[-1][:, None], (1, N)), _hcat(np.repeat(z.Y[-1:], N, axis=0)),
                                    D.At.T, D.bt[None, :])
-        return np.asarray(out).ravel()
+        return out.full().ravel()
 
     def kalman_residuals(self, z: Layout) -> np.ndarray:
         """Q_k^-1 - Y_{k-1}^-1 - W for k = 2..K, (K-1, d, d)."""
         K, d = self.data.K, self.data.d
         if K < 2:
             return np.zeros((0, d, d))
-        g = np.asarray(self.f_kalman.map(K - 1)(_hcat(z.Q[2:]), _hcat(z.Y[1:-1])))
+        g = self.f_kalman.map(K - 1)(_hcat(z.Q[2:]), _hcat(z.Y[1:-1])).full()
         return sym(np.stack(np.split(g, K - 1, axis=1)))
 
     def kalman_gaps(self, z: Layout) -> np.ndarray:
