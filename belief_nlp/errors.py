@@ -37,7 +37,12 @@ class ValidationError(BeliefNLPError, ValueError):
 
 
 class ScenarioFileError(ValidationError):
-    """A scenario file cannot be read or does not follow the schema."""
+    """A file cannot be read or does not follow its schema.
+
+    Raised for scenario files (schema faults too), and for path and result
+    files that are missing, unreadable, malformed, not a zip archive (NPZ),
+    too large or nested too deeply (limits in ``belief_nlp._limits``).
+    """
 
 
 class InfeasibleStartError(BeliefNLPError, ValueError):

@@ -1,8 +1,19 @@
-"""Belief paths: means, prior and posterior covariances, sensing, costs."""
+"""Belief paths: means, prior and posterior covariances, sensing, costs.
+
+A :class:`BeliefPath` is validated once, when it is built: its arrays are
+private read-only copies and cannot be reassigned, so a path that passed
+validation (and :func:`~belief_nlp.verify`) cannot later be turned into
+something else in place.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
+import os
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -10,28 +21,75 @@ from typing import Any
 import numpy as np
 
 from . import belief
-from .errors import ValidationError
+from ._limits import check_document, check_npz, load_json, parse_document
+from .errors import ScenarioFileError, ValidationError
 
 __all__ = ["BeliefPath", "NOISE_MODELS"]
 
 NOISE_MODELS = ("per_step", "per_metre")
+_ARRAYS = ("x", "P", "P_prior", "S")
 
 
-def _float_array(value: Any, field_name: str) -> np.ndarray:
+def _float_array(value: Any, field_name: str, finite: bool = False) -> np.ndarray:
+    """``value`` as a new float array; with ``finite``, NaN and inf are refused too."""
     try:
         raw = np.asarray(value)
-    except (TypeError, ValueError) as exc:
-        raise ValidationError(field_name, f"must be a rectangular array of numbers: {exc}") from exc
+    except (TypeError, ValueError, RecursionError) as exc:
+        raise ValidationError(field_name, f"must be a rectangular array of numbers: {str(exc)[:200]}") from exc
     if raw.dtype.kind not in "iuf":
         raise ValidationError(field_name, f"must be an array of numbers, got dtype {raw.dtype}")
-    return raw.astype(float)
+    arr = raw.astype(float)
+    if finite and not np.all(np.isfinite(arr)):
+        raise ValidationError(field_name, "contains NaN or infinite values")
+    return arr
+
+
+def _values_equal(a: Any, b: Any) -> bool:
+    """Equality in which NaN equals NaN, through dicts, lists and arrays.
+
+    Results keep NaN for "not measured" (a failed run's travel, say), and a
+    saved result must compare equal to itself after loading.
+    """
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_values_equal(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_values_equal(x, y) for x, y in zip(a, b))
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a_arr, b_arr = np.asarray(a), np.asarray(b)
+        if a_arr.shape != b_arr.shape:
+            return False
+        if a_arr.dtype.kind in "fc" or b_arr.dtype.kind in "fc":
+            return bool(np.array_equal(a_arr, b_arr, equal_nan=True))
+        return bool(np.array_equal(a_arr, b_arr))
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    try:
+        return bool(a == b)
+    except (TypeError, ValueError):
+        return False
 
 
 def _means(x: Any) -> np.ndarray:
-    x = _float_array(x, "x")
+    x = _float_array(x, "x", finite=True)
     if x.ndim != 2 or x.shape[0] < 2:
         raise ValidationError("x", f"must have shape (K+1, d) with K >= 1, got {x.shape}")
     return x
+
+
+def _meta(meta: Any) -> dict:
+    if meta is None:
+        return {}
+    if not isinstance(meta, dict):
+        raise ValidationError("meta", f"must be a dict, got {type(meta).__name__}")
+    return dict(meta)
+
+
+def _positive_definite(P: np.ndarray) -> bool:
+    try:
+        np.linalg.cholesky(0.5 * (P + P.T))
+    except np.linalg.LinAlgError:
+        return False
+    return True
 
 
 @dataclass(eq=False)
@@ -78,11 +136,23 @@ class BeliefPath:
             arr = getattr(self, name)
             if arr.shape != (n, d, d):
                 raise ValidationError(f"path.{name}", f"must have shape {(n, d, d)}, got {arr.shape}")
-        for name in ("x", "P", "P_prior", "S"):
+        for name in _ARRAYS:
             if not np.all(np.isfinite(getattr(self, name))):
                 raise ValidationError(f"path.{name}", "contains NaN or infinite values")
-        if self.noise not in NOISE_MODELS:
-            raise ValidationError("path.noise", f"must be one of {NOISE_MODELS}, got {self.noise!r}")
+        if not isinstance(self.noise, str) or self.noise not in NOISE_MODELS:
+            raise ValidationError("path.noise", f"must be one of {NOISE_MODELS}, got {self.noise!r:.60}")
+        self.noise = str(self.noise)
+        for name in _ARRAYS:
+            getattr(self, name).flags.writeable = False
+        object.__setattr__(self, "_validated", True)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        # The arrays and the noise model are fixed once validated (meta stays
+        # free-form): build a new path instead, e.g. dataclasses.replace(p, x=...).
+        if name in _ARRAYS + ("noise",) and getattr(self, "_validated", False):
+            raise dataclasses.FrozenInstanceError(f"BeliefPath.{name} is read-only; build a new path "
+                                                  f"(dataclasses.replace(path, {name}=...))")
+        object.__setattr__(self, name, value)
 
     # -------------------------------------------------------------- builders
     @classmethod
@@ -95,13 +165,13 @@ class BeliefPath:
         """
         x = _means(x)
         n, d = x.shape
-        S = _float_array(S, "S")
+        S = _float_array(S, "S", finite=True)
         if S.shape == (n - 1, d, d):
             S = np.concatenate([np.zeros((1, d, d)), S], axis=0)
         elif S.shape != (n, d, d):
             raise ValidationError("S", f"must have shape {(n - 1, d, d)} (steps 1..K) or {(n, d, d)} "
                                        f"(S[0] ignored) for x of shape {x.shape}, got {S.shape}")
-        P0 = _float_array(P0, "P0")
+        P0 = _float_array(P0, "P0", finite=True)
         if P0.shape != (d, d):
             raise ValidationError("P0", f"must have shape {(d, d)}, got {P0.shape}")
         Wk = cls._transition_noise(x, W, W_rate, noise)
@@ -112,8 +182,12 @@ class BeliefPath:
         S[0] = 0.0
         for k in range(1, n):
             Pp[k] = P[k - 1] + Wk[k - 1]
-            P[k] = belief.update(Pp[k], S[k])
-        return cls(x, P, Pp, S, noise, dict(meta or {}))
+            try:
+                P[k] = belief.update(Pp[k], S[k])
+            except np.linalg.LinAlgError as exc:
+                raise ValidationError("S", f"the Kalman update at step {k} fails ({exc}): the prior or "
+                                           f"P_prior^-1 + S_{k} is not positive definite") from exc
+        return cls(x, P, Pp, S, noise, _meta(meta))
 
     @classmethod
     def from_covariances(cls, x, P, W=None, W_rate=None, noise: str = "per_step",
@@ -122,7 +196,7 @@ class BeliefPath:
         S_k = P_k^-1 - P_prior_k^-1 are derived (S_k may come out indefinite
         if the path is not lossless; :func:`~belief_nlp.verify` reports it)."""
         x = _means(x)
-        P = _float_array(P, "P")
+        P = _float_array(P, "P", finite=True)
         n, d = x.shape
         if P.shape != (n, d, d):
             raise ValidationError("P", f"must have shape {(n, d, d)} for x of shape {x.shape}, got {P.shape}")
@@ -131,8 +205,19 @@ class BeliefPath:
         Pp[0] = P[0]
         Pp[1:] = P[:-1] + Wk
         S = np.zeros_like(P)
-        S[1:] = belief.lossless_sensing(Pp[1:], P[1:])
-        return cls(x, P, Pp, S, noise, dict(meta or {}))
+        with np.errstate(all="ignore"):
+            try:
+                S[1:] = belief.lossless_sensing(Pp[1:], P[1:])
+                ok = bool(np.all(np.isfinite(S)))
+            except np.linalg.LinAlgError:
+                ok = False
+        if not ok:
+            # name the first step whose covariance cannot be inverted
+            bad = next((k for k in range(1, n) if not _positive_definite(P[k])), None)
+            where = f"P_{bad} is singular or not positive definite" if bad is not None else \
+                "a prior covariance is not positive definite"
+            raise ValidationError("P", f"the sensing S_k = P_k^-1 - P_prior_k^-1 cannot be derived: {where}")
+        return cls(x, P, Pp, S, noise, _meta(meta))
 
     @staticmethod
     def _transition_noise(x: np.ndarray, W, W_rate, noise: str) -> np.ndarray:
@@ -141,19 +226,19 @@ class BeliefPath:
         if noise == "per_step":
             if W is None:
                 raise ValidationError("W", "per_step noise needs W")
-            W = _float_array(W, "W")
+            W = _float_array(W, "W", finite=True)
             if W.shape not in ((d, d), (n - 1, d, d)):
                 raise ValidationError("W", f"must have shape {(d, d)} or {(n - 1, d, d)}, got {W.shape}")
             return np.broadcast_to(W, (n - 1, d, d)).copy()
         if noise == "per_metre":
             if W_rate is None:
                 raise ValidationError("W_rate", "per_metre noise needs W_rate")
-            W_rate = _float_array(W_rate, "W_rate")
+            W_rate = _float_array(W_rate, "W_rate", finite=True)
             if W_rate.shape != (d, d):
                 raise ValidationError("W_rate", f"must have shape {(d, d)}, got {W_rate.shape}")
             lengths = np.linalg.norm(np.diff(x, axis=0), axis=1)
             return lengths[:, None, None] * W_rate[None]
-        raise ValidationError("noise", f"must be one of {NOISE_MODELS}, got {noise!r}")
+        raise ValidationError("noise", f"must be one of {NOISE_MODELS}, got {noise!r:.60}")
 
     # ------------------------------------------------------------ properties
     @property
@@ -240,53 +325,84 @@ class BeliefPath:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "BeliefPath":
+        """A path from :meth:`to_dict` output (validated like the constructor)."""
         if not isinstance(data, dict):
             raise ValidationError("path", f"must be an object, got {type(data).__name__}")
+        check_document(data, "path", "path")
         missing = {"x", "P", "P_prior", "S"} - set(data)
         if missing:
             raise ValidationError(f"path.{sorted(missing)[0]}", "missing")
-        unknown = set(data) - {"x", "P", "P_prior", "S", "noise", "meta"}
+        unknown = set(map(str, data)) - {"x", "P", "P_prior", "S", "noise", "meta"}
         if unknown:
-            raise ValidationError(f"path.{sorted(unknown)[0]}", "unknown key")
+            raise ValidationError(f"path.{sorted(unknown)[0][:60]}", "unknown key")
         noise = data.get("noise", "per_step")
         meta = data.get("meta", {})
         if not isinstance(meta, dict):
             raise ValidationError("path.meta", f"must be an object, got {type(meta).__name__}")
         return cls(data["x"], data["P"], data["P_prior"], data["S"], noise, dict(meta))
 
-    def save(self, path: str | Path) -> Path:
-        """Write as ``.json`` or ``.npz`` (by suffix); :meth:`load` reads it back equal."""
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write as ``.json`` or ``.npz`` (by suffix); :meth:`load` reads it back equal.
+
+        A file that cannot be written raises
+        :class:`~belief_nlp.errors.ScenarioFileError` (field ``path``); a
+        ``meta`` that JSON cannot hold raises ValidationError (``path.meta``).
+        """
+        if not isinstance(path, (str, os.PathLike)):
+            raise ValidationError("path", f"must be a file name, got {type(path).__name__}")
         path = Path(path)
-        if path.suffix == ".json":
-            path.write_text(json.dumps(self.to_dict(), allow_nan=False))
-        elif path.suffix == ".npz":
-            np.savez(path, x=self.x, P=self.P, P_prior=self.P_prior, S=self.S,
-                     noise=np.array(self.noise), meta=np.array(json.dumps(self.meta)))
-        else:
+        if path.suffix not in (".json", ".npz"):
             raise ValidationError("path", f"belief paths are saved as .json or .npz, got {path.suffix!r}")
+        try:
+            meta_text = json.dumps(self.meta, allow_nan=False)
+        except (TypeError, ValueError, RecursionError) as exc:
+            raise ValidationError("path.meta", f"cannot be written as JSON: {exc}") from exc
+        try:
+            if path.suffix == ".json":
+                path.write_text(json.dumps(self.to_dict(), allow_nan=False))
+            else:
+                np.savez(path, x=self.x, P=self.P, P_prior=self.P_prior, S=self.S,
+                         noise=np.array(self.noise), meta=np.array(meta_text))
+        except OSError as exc:
+            raise ScenarioFileError("path", f"cannot write {str(path)[:200]}: {exc}") from exc
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> "BeliefPath":
-        """Read a path written by :meth:`save` (``.npz``; anything else is read as JSON)."""
+    def load(cls, path: str | os.PathLike) -> "BeliefPath":
+        """Read a path written by :meth:`save` (``.npz``; anything else is read as JSON).
+
+        Files are limited to 128 MiB (NPZ members to 512 MiB unpacked) and 32
+        levels of nesting. A file that is missing, unreadable, malformed, not
+        a zip archive (``.npz``) or beyond the limits raises
+        :class:`~belief_nlp.errors.ScenarioFileError` (field ``path``); bad
+        contents raise :class:`~belief_nlp.errors.ValidationError` naming the
+        field (``path.P``, ...).
+        """
+        if not isinstance(path, (str, os.PathLike)):
+            raise ValidationError("path", f"must be a file name, got {type(path).__name__}")
         path = Path(path)
-        if not path.is_file():
-            raise ValidationError("path", f"no such file: {path}")
         if path.suffix == ".npz":
+            check_npz(path, "path")
             try:
                 with np.load(path, allow_pickle=False) as z:
                     missing = {"x", "P", "P_prior", "S", "noise", "meta"} - set(z.files)
                     if missing:
-                        raise ValidationError(f"path.{sorted(missing)[0]}", f"missing in {path}")
-                    return cls(z["x"], z["P"], z["P_prior"], z["S"], str(z["noise"]), json.loads(str(z["meta"])))
+                        raise ValidationError(f"path.{sorted(missing)[0]}", f"missing in {str(path)[:200]}")
+                    arrays = [z[k] for k in _ARRAYS]
+                    noise, meta_text = z["noise"], z["meta"]
             except ValidationError:
                 raise
-            except (OSError, ValueError) as exc:
-                raise ValidationError("path", f"{path}: not a belief-path NPZ file: {exc}") from exc
-        try:
-            data = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise ValidationError("path", f"{path}: malformed JSON: {exc}") from exc
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+                raise ScenarioFileError("path", f"{str(path)[:200]}: not a belief-path NPZ file: "
+                                                f"{str(exc)[:200]}") from exc
+            if noise.ndim != 0 or meta_text.ndim != 0 or noise.dtype.kind != "U" or meta_text.dtype.kind != "U":
+                raise ValidationError("path.noise" if noise.ndim != 0 or noise.dtype.kind != "U" else "path.meta",
+                                      "must be a single string")
+            meta = parse_document(str(meta_text), "json", f"{str(path)[:200]} (meta)", "path.meta")
+            if not isinstance(meta, dict):
+                raise ValidationError("path.meta", f"must be an object, got {type(meta).__name__}")
+            return cls(*arrays, str(noise), meta)
+        data = load_json(path, "path")
         if isinstance(data, dict) and "path" in data and "x" not in data:
             data = data["path"]  # a result file holding a path
         return cls.from_dict(data)
@@ -294,8 +410,8 @@ class BeliefPath:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, BeliefPath):
             return NotImplemented
-        return (self.noise == other.noise and self.meta == other.meta
-                and all(np.array_equal(getattr(self, f), getattr(other, f)) for f in ("x", "P", "P_prior", "S")))
+        return (self.noise == other.noise and _values_equal(self.meta, other.meta)
+                and all(np.array_equal(getattr(self, f), getattr(other, f)) for f in _ARRAYS))
 
     __hash__ = None  # type: ignore[assignment]
 

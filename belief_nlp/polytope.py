@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from ._limits import MAX_COORDINATE, MAX_DIMENSION, MAX_POLYTOPE_FACES, MAX_POLYTOPE_VERTICES
 from .errors import ScenarioFileError, ValidationError
 
 __all__ = ["Polytope"]
@@ -49,6 +50,18 @@ def _as_finite_array(value: Any, field_name: str, ndim: int) -> np.ndarray:
     return arr
 
 
+def _check_magnitude(values: np.ndarray, field_name: str, what: str = "coordinates") -> None:
+    """Reject coordinates beyond :data:`~belief_nlp._limits.MAX_COORDINATE` (documented limit)."""
+    if values.size and float(np.max(np.abs(values))) > MAX_COORDINATE:
+        raise ValidationError(field_name, f"{what} must lie within +-{MAX_COORDINATE:g} m, got "
+                                          f"{float(np.max(np.abs(values))):.3g}")
+
+
+def _check_count(n: int, limit: int, field_name: str, what: str) -> None:
+    if n > limit:
+        raise ValidationError(field_name, f"{n} {what} is more than the limit of {limit}")
+
+
 def _normalise_rows(A: np.ndarray, b: np.ndarray, field_name: str) -> tuple[np.ndarray, np.ndarray]:
     norms = np.linalg.norm(A, axis=1)
     if np.any(norms <= 1e-12):
@@ -62,104 +75,171 @@ def _normalise_rows(A: np.ndarray, b: np.ndarray, field_name: str) -> tuple[np.n
 
 
 def _repeated_vertex(V: np.ndarray, field_name: str) -> None:
-    """Reject a vertex list in which two vertices (adjacent or not) coincide."""
+    """Reject a vertex list in which two vertices (adjacent or not) coincide.
+
+    A k-d tree makes this O(n log n): the first offending pair (i, j) in
+    lexicographic order has i = the smallest index with a neighbour within
+    the tolerance (every neighbour of that i has a larger index).
+    """
+    from scipy.spatial import cKDTree
+
     span = float(np.max(np.ptp(V, axis=0)))
     if span <= 0:
         raise ValidationError(field_name, "degenerate polytope: all vertices coincide")
-    dist = np.linalg.norm(V[:, None, :] - V[None, :, :], axis=-1)
-    close = np.argwhere(np.triu(dist <= _REL_TOL * span, k=1))
+    tol = _REL_TOL * span
+    tree = cKDTree(V)
+    nearest, _ = tree.query(V, k=2)
+    close = np.flatnonzero(nearest[:, 1] <= tol)
     if close.size:
-        i, j = (int(v) for v in close[0])
+        i = int(close[0])
+        j = min(k for k in tree.query_ball_point(V[i], tol) if k != i)
         raise ValidationError(field_name, f"repeated vertex: vertices {i} and {j} coincide ({V[i].tolist()})")
 
 
 def _crossing_edges(V: np.ndarray) -> tuple[int, int] | None:
-    """First pair of non-adjacent edges (i, i+1), (j, j+1) of a closed polygon that cross."""
+    """First pair of non-adjacent edges (i, i+1), (j, j+1) of a closed polygon that cross.
+
+    Quadratic in the vertex count, so it only runs to explain why a small
+    polygon was rejected (the acceptance test itself is linear).
+    """
     n = V.shape[0]
+    i, j = np.triu_indices(n, k=2)
+    keep = ~((i == 0) & (j == n - 1))      # edges 0 and n-1 share vertex 0
+    i, j = i[keep], j[keep]
+    p1, p2, q1, q2 = V[i], V[(i + 1) % n], V[j], V[(j + 1) % n]
 
     def orient(p, q, r):
-        return (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])
+        return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
 
-    for i in range(n):
-        p1, p2 = V[i], V[(i + 1) % n]
-        for j in range(i + 2, n):
-            if i == 0 and j == n - 1:
-                continue  # adjacent through vertex 0
-            q1, q2 = V[j], V[(j + 1) % n]
-            d1, d2 = orient(q1, q2, p1), orient(q1, q2, p2)
-            d3, d4 = orient(p1, p2, q1), orient(p1, p2, q2)
-            if d1 * d2 <= 0 and d3 * d4 <= 0 and (d1, d2, d3, d4) != (0, 0, 0, 0):
-                return i, j
-    return None
+    d1, d2, d3, d4 = orient(q1, q2, p1), orient(q1, q2, p2), orient(p1, p2, q1), orient(p1, p2, q2)
+    hit = (d1 * d2 <= 0) & (d3 * d4 <= 0) & ~((d1 == 0) & (d2 == 0) & (d3 == 0) & (d4 == 0))
+    first = np.flatnonzero(hit)
+    return (int(i[first[0]]), int(j[first[0]])) if first.size else None
+
+
+# Polygons up to this size that fail validation are also searched for crossing
+# edges, to say which edges cross (quadratic, so not for larger ones).
+_DIAGNOSE_MAX = 256
 
 
 def _polygon_from_vertices(V: np.ndarray, field_name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Validate a convex polygon and return (A, b, vertices in CCW order)."""
+    """Validate a convex polygon and return (A, b, vertices in CCW order).
+
+    Accepted iff, after orienting it counter-clockwise, every vertex turns left
+    by more than the tolerance and the turns add up to one full turn: such a
+    closed polygon is simple and strictly convex. That test is O(n); only a
+    rejected small polygon is searched for crossing edges, for the message.
+    """
     n = V.shape[0]
     if n < 3:
         raise ValidationError(field_name, f"a polygon needs at least 3 vertices, got {n}")
+    _check_count(n, MAX_POLYTOPE_VERTICES, field_name, "vertices")
+    _check_magnitude(V, field_name)
     _repeated_vertex(V, field_name)
     span = float(np.max(np.ptp(V, axis=0)))
-    edges = np.roll(V, -1, axis=0) - V
-    lengths = np.linalg.norm(edges, axis=1)
-    crossing = _crossing_edges(V)
+    area2 = float(np.sum(V[:, 0] * np.roll(V[:, 1], -1) - np.roll(V[:, 0], -1) * V[:, 1]))
+    flat = abs(area2) <= _REL_TOL * span * span
+    W = V[::-1].copy() if area2 < 0 else V    # counter-clockwise
+    edges = np.roll(W, -1, axis=0) - W
+    nxt = np.roll(edges, -1, axis=0)
+    cross = edges[:, 0] * nxt[:, 1] - edges[:, 1] * nxt[:, 0]   # turn at vertex i + 1
+    # A vertex is collinear with its neighbours when it lies within 1e-9 of
+    # the polygon's extent (plus rounding) of the chord joining them. This is
+    # a distance, so fine regular polygons (a 4000-gon of radius 0.1 m: the
+    # vertex is 1.2e-7 m off the chord) pass, and it scales with the polygon.
+    chord = np.linalg.norm(edges + nxt, axis=1)
+    height_tol = _REL_TOL * span + 64 * np.finfo(float).eps * float(np.max(np.abs(V)))
+    collinear = np.abs(cross) <= height_tol * chord
+    angles = np.arctan2(cross, np.sum(edges * nxt, axis=1))
+    winds_once = abs(float(np.sum(angles)) - 2 * np.pi) <= 1e-6
+    if not flat and not np.any(collinear) and np.all(cross > 0) and winds_once:
+        # Outward normal of CCW edge (ex, ey) is (ey, -ex).
+        lengths = np.linalg.norm(edges, axis=1)
+        A = np.column_stack([edges[:, 1], -edges[:, 0]]) / lengths[:, None]
+        b = np.einsum("ij,ij->i", A, W)
+        return A, b, W
+    crossing = _crossing_edges(V) if n <= _DIAGNOSE_MAX else None
     if crossing is not None:
         i, j = crossing
         raise ValidationError(field_name, f"polygon is self-intersecting: edge {i}-{(i + 1) % n} meets "
                                           f"edge {j}-{(j + 1) % n} (list the vertices in boundary order)")
-    area2 = float(np.sum(V[:, 0] * np.roll(V[:, 1], -1) - np.roll(V[:, 0], -1) * V[:, 1]))
-    if abs(area2) <= _REL_TOL * span * span:
+    if flat:
         raise ValidationError(field_name, "degenerate polygon: zero area (collinear vertices)")
-    if area2 < 0:  # clockwise input: reverse to counter-clockwise
-        V = V[::-1].copy()
-        edges = np.roll(V, -1, axis=0) - V
-        lengths = np.linalg.norm(edges, axis=1)
-    cross = edges[:, 0] * np.roll(edges, -1, axis=0)[:, 1] - edges[:, 1] * np.roll(edges, -1, axis=0)[:, 0]
-    turn_tol = _REL_TOL * span * span
-    if np.any(np.abs(cross) <= turn_tol):
-        i = int(np.argmin(np.abs(cross)))
+    if np.any(collinear):
+        i = int(np.argmax(collinear))
         raise ValidationError(field_name, f"degenerate polygon: vertex {(i + 1) % n} is collinear with its neighbours")
     if np.any(cross < 0):
         i = int(np.argmin(cross))
         raise ValidationError(field_name, f"polygon is not convex (reflex turn at vertex {(i + 1) % n})")
-    # All left turns can still wind more than once (a pentagram): the heading
-    # must turn through exactly 2*pi.
-    angles = np.arctan2(cross, np.sum(edges * np.roll(edges, -1, axis=0), axis=1))
-    if abs(float(np.sum(angles)) - 2 * np.pi) > 1e-6:
-        raise ValidationError(field_name, "polygon is self-intersecting (it winds more than once)")
-    # Outward normal of CCW edge (ex, ey) is (ey, -ex).
-    A = np.column_stack([edges[:, 1], -edges[:, 0]]) / lengths[:, None]
-    b = np.einsum("ij,ij->i", A, V)
-    return A, b, V
+    # All left turns can still wind more than once (a pentagram).
+    raise ValidationError(field_name, "polygon is self-intersecting (it winds more than once)")
 
 
-def _vertex_enumeration(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Vertices of {A y <= b} by brute-force enumeration of d-subsets of faces."""
+def _merge_coplanar(eq: np.ndarray, neighbors: np.ndarray) -> np.ndarray:
+    """Indices of the facets to keep when triangles of one face are merged.
+
+    Qhull triangulates: a square face comes back as two facets with (nearly)
+    equal equations. Such triangles are adjacent, so only adjacent facets are
+    compared (linear in the facet count) and each connected group keeps its
+    first facet.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = eq.shape[0]
+    i = np.repeat(np.arange(m), neighbors.shape[1])
+    j = neighbors.ravel()
+    n_i, n_j = eq[i, :-1], eq[j, :-1]
+    same = (np.all(np.abs(n_i - n_j) <= 1e-9 + 1e-5 * np.abs(n_j), axis=1)
+            & (np.abs(eq[i, -1] - eq[j, -1]) < 1e-9))
+    graph = coo_matrix((np.ones(int(same.sum())), (i[same], j[same])), shape=(m, m))
+    _, label = connected_components(graph, directed=False)
+    first = np.full(int(label.max()) + 1, m)
+    np.minimum.at(first, label, np.arange(m))
+    return np.sort(first)
+
+
+def _halfspace_vertices(A: np.ndarray, b: np.ndarray, inner: np.ndarray, field_name: str) -> np.ndarray:
+    """Vertices of the bounded {A y <= b} around the interior point ``inner``.
+
+    Qhull's half-space intersection (the dual convex hull, O(f log f)) finds
+    which d faces meet at each vertex; the vertex is then solved from those
+    faces directly, as precise as a d x d solve. Coincident vertices (more
+    than d faces through a point) are merged.
+    """
+    from scipy.spatial import HalfspaceIntersection, QhullError
+
     f, d = A.shape
+    try:
+        hsi = HalfspaceIntersection(np.column_stack([A, -b]), inner)
+    except (QhullError, ValueError) as exc:
+        raise ValidationError(field_name, "degenerate polytope: its vertices cannot be computed") from exc
+    V = np.array(hsi.intersections, dtype=float)
+    faces = np.asarray(hsi.dual_facets, dtype=np.int64)
+    if faces.ndim == 2 and faces.shape[1] == d:
+        M = A[faces]
+        ok = np.abs(np.linalg.det(M)) > 1e-12
+        if np.any(ok):
+            V[ok] = np.linalg.solve(M[ok], b[faces[ok]][..., None])[..., 0]
+    # (Every intersection is feasible by construction: Qhull only returns the
+    # vertices of the dual hull, i.e. of the non-redundant faces.)
     scale = 1.0 + float(np.max(np.abs(b)))
-    verts = []
-    for S in itertools.combinations(range(f), d):
-        AS = A[list(S)]
-        if abs(np.linalg.det(AS)) < 1e-12:
-            continue
-        v = np.linalg.solve(AS, b[list(S)])
-        if np.all(A @ v <= b + _REL_TOL * scale):
-            verts.append(v)
-    if not verts:
-        return np.zeros((0, d))
-    V = np.array(verts)
-    # deduplicate (several subsets meet at a degenerate vertex)
-    keep: list[np.ndarray] = []
-    for v in V:
-        if not any(np.linalg.norm(v - w) <= _REL_TOL * scale for w in keep):
-            keep.append(v)
-    return np.array(keep)
+    V = V[np.all(np.isfinite(V), axis=1)]
+    # merge vertices within the tolerance (a grid of that pitch)
+    _, first = np.unique(np.round(V / (_REL_TOL * scale)), axis=0, return_index=True)
+    return V[np.sort(first)]
 
 
 def _order_ccw(V: np.ndarray) -> np.ndarray:
     c = V.mean(axis=0)
     ang = np.arctan2(V[:, 1] - c[1], V[:, 0] - c[0])
-    return V[np.argsort(ang)]
+    return V[np.argsort(ang, kind="stable")]
+
+
+def _frozen(arr: np.ndarray) -> np.ndarray:
+    """``arr`` made read-only (the caller passes a private copy)."""
+    arr.flags.writeable = False
+    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -187,6 +267,30 @@ class Polytope:
     name: str = ""
     spec: dict = field(default_factory=dict, repr=False)
 
+    def __post_init__(self) -> None:
+        # The direct constructor does not re-derive anything (the classmethods
+        # validate geometry), but it still refuses non-finite or mis-shaped
+        # arrays, and stores private read-only copies so that no caller can
+        # change a polytope a scenario has validated.
+        label = self.name or "polytope"
+        A = _as_finite_array(self.A, f"{label}.A", 2)
+        b = _as_finite_array(self.b, f"{label}.b", 1)
+        if A.shape[0] != b.shape[0]:
+            raise ValidationError(f"{label}.b", f"A has {A.shape[0]} rows but b has {b.shape[0]} entries")
+        if A.shape[1] > MAX_DIMENSION:
+            raise ValidationError(f"{label}.A", f"dimension {A.shape[1]} is more than the limit of {MAX_DIMENSION}")
+        object.__setattr__(self, "A", _frozen(A))
+        object.__setattr__(self, "b", _frozen(b))
+        if self.vertices is not None:
+            V = _as_finite_array(self.vertices, f"{label}.vertices", 2)
+            if V.shape[1] != A.shape[1]:
+                raise ValidationError(f"{label}.vertices", f"are {V.shape[1]}-D but A is {A.shape[1]}-D")
+            object.__setattr__(self, "vertices", _frozen(V))
+        if not isinstance(self.name, str):
+            raise ValidationError("name", f"must be a string, got {type(self.name).__name__}")
+        if not isinstance(self.spec, dict):
+            raise ValidationError(f"{label}.spec", f"must be a dict, got {type(self.spec).__name__}")
+
     # ------------------------------------------------------------------ ctors
     @classmethod
     def from_vertices(cls, vertices: Any, name: str = "", field_name: str = "vertices") -> "Polytope":
@@ -195,12 +299,16 @@ class Polytope:
         In 2-D the vertices must already form a convex polygon (either
         orientation); non-convex, self-intersecting or degenerate lists are
         rejected. In 3-D and above the convex hull is taken and every given
-        vertex must be a hull vertex.
+        vertex must be a hull vertex. At most
+        :data:`~belief_nlp._limits.MAX_POLYTOPE_VERTICES` vertices, each
+        coordinate within +-:data:`~belief_nlp._limits.MAX_COORDINATE` m.
         """
         V = _as_finite_array(vertices, field_name, 2)
         d = V.shape[1]
         if d < 2:
             raise ValidationError(field_name, f"vertices must have dimension >= 2, got {d}")
+        if d > MAX_DIMENSION:
+            raise ValidationError(field_name, f"dimension {d} is more than the limit of {MAX_DIMENSION}")
         if d == 2:
             A, b, Vccw = _polygon_from_vertices(V, field_name)
             return cls(A, b, Vccw, name, {"vertices": V.tolist()})
@@ -213,34 +321,35 @@ class Polytope:
         d = V.shape[1]
         if V.shape[0] < d + 1:
             raise ValidationError(field_name, f"a {d}-D polytope needs at least {d + 1} vertices, got {V.shape[0]}")
+        _check_count(V.shape[0], MAX_POLYTOPE_VERTICES, field_name, "vertices")
+        _check_magnitude(V, field_name)
         _repeated_vertex(V, field_name)
         try:
             hull = ConvexHull(V)
-        except QhullError as exc:
+        except (QhullError, ValueError) as exc:
             raise ValidationError(field_name, "degenerate polytope (vertices do not span the space)") from exc
         if len(hull.vertices) != V.shape[0]:
             missing = sorted(set(range(V.shape[0])) - set(hull.vertices.tolist()))
-            raise ValidationError(field_name, f"vertices {missing} are not extreme points: the list is not a convex polytope")
-        eq = hull.equations  # (facets, d+1): n.y + off <= 0, unit normals
-        A_list: list[np.ndarray] = []
-        b_list: list[float] = []
-        for row in eq:
-            n, off = row[:-1], -row[-1]
-            if not any(np.allclose(n, a, atol=1e-9) and abs(off - bb) < 1e-9 for a, bb in zip(A_list, b_list)):
-                A_list.append(n)
-                b_list.append(off)
-        A, b = _normalise_rows(np.array(A_list), np.array(b_list), field_name)
+            shown = ", ".join(map(str, missing[:10])) + (f", ... ({len(missing)} in all)" if len(missing) > 10 else "")
+            raise ValidationError(field_name, f"vertices [{shown}] are not extreme points: the list is not a "
+                                              f"convex polytope")
+        eq = hull.equations[_merge_coplanar(hull.equations, hull.neighbors)]  # n.y + off <= 0, unit normals
+        A, b = _normalise_rows(eq[:, :-1].copy(), -eq[:, -1], field_name)
         return cls(A, b, V[np.sort(hull.vertices)], name, {"vertices": V.tolist()})
 
     @classmethod
     def box(cls, lower: Any, upper: Any, name: str = "", field_name: str = "box") -> "Polytope":
-        """Axis-aligned box ``lower <= y <= upper``."""
+        """Axis-aligned box ``lower <= y <= upper`` (bounds within +-MAX_COORDINATE m)."""
         lo = _as_finite_array(lower, f"{field_name}.lower", 1)
         hi = _as_finite_array(upper, f"{field_name}.upper", 1)
         if lo.shape != hi.shape:
             raise ValidationError(field_name, f"lower and upper have different lengths {lo.size} and {hi.size}")
         if lo.size < 2:
             raise ValidationError(field_name, f"dimension must be >= 2, got {lo.size}")
+        if lo.size > MAX_DIMENSION:  # 2**d corners
+            raise ValidationError(field_name, f"dimension {lo.size} is more than the limit of {MAX_DIMENSION}")
+        _check_magnitude(lo, f"{field_name}.lower")
+        _check_magnitude(hi, f"{field_name}.upper")
         if np.any(hi - lo <= 0):
             i = int(np.argmin(hi - lo))
             raise ValidationError(field_name, f"degenerate box: upper[{i}] <= lower[{i}]")
@@ -254,16 +363,30 @@ class Polytope:
     @classmethod
     def from_halfspaces(cls, A: Any, b: Any, name: str = "", field_name: str = "halfspaces",
                         require_bounded: bool = True) -> "Polytope":
-        """``{y : A y <= b}``; rows are normalised to unit length."""
+        """``{y : A y <= b}``; rows are normalised to unit length.
+
+        At most :data:`~belief_nlp._limits.MAX_POLYTOPE_FACES` rows; a
+        bounded polytope's vertices (an unbounded one's offsets) must lie
+        within +-:data:`~belief_nlp._limits.MAX_COORDINATE` m.
+        """
         A_arr = _as_finite_array(A, f"{field_name}.A", 2)
         b_arr = _as_finite_array(b, f"{field_name}.b", 1)
         if A_arr.shape[0] != b_arr.shape[0]:
             raise ValidationError(f"{field_name}.b", f"A has {A_arr.shape[0]} rows but b has {b_arr.shape[0]} entries")
+        _check_count(A_arr.shape[0], MAX_POLYTOPE_FACES, f"{field_name}.A", "half-spaces")
         d = A_arr.shape[1]
         if d < 2:
             raise ValidationError(f"{field_name}.A", f"dimension must be >= 2, got {d}")
+        if d > MAX_DIMENSION:
+            raise ValidationError(f"{field_name}.A", f"dimension {d} is more than the limit of {MAX_DIMENSION}")
+        spec = {"A": A_arr.tolist(), "b": b_arr.tolist()}
         A_arr, b_arr = _normalise_rows(A_arr, b_arr, field_name)
-        spec = {"A": np.asarray(A, dtype=float).tolist(), "b": np.asarray(b, dtype=float).tolist()}
+        # b_i is the distance of face i from the origin; a face touching the
+        # cube of half-width MAX_COORDINATE is at most sqrt(d) times that away.
+        if b_arr.size and float(np.max(np.abs(b_arr))) > np.sqrt(d) * MAX_COORDINATE:
+            raise ValidationError(f"{field_name}.b", f"face offsets (distances from the origin, rows of A "
+                                                     f"normalised) must be at most sqrt({d}) * {MAX_COORDINATE:g} m, "
+                                                     f"got {float(np.max(np.abs(b_arr))):.3g}")
         if not require_bounded:
             return cls(A_arr, b_arr, None, name, spec)
         if A_arr.shape[0] < d + 1:
@@ -278,6 +401,9 @@ class Polytope:
             raise ValidationError(field_name, "empty polytope: the half-spaces have no common point")
         if res.status == 0 and res.x[-1] <= _REL_TOL * scale:
             raise ValidationError(field_name, "degenerate polytope: it has no interior (flat)")
+        if res.status != 0:
+            raise ValidationError(field_name, f"the half-spaces could not be analysed ({res.message})")
+        centre = res.x[:d]
         # bounded iff no coordinate can grow without limit
         for i in range(d):
             for sgn in (1.0, -1.0):
@@ -287,8 +413,10 @@ class Polytope:
                 if res.status == 3:
                     direction = ("+" if sgn > 0 else "-") + "xyz"[i] if d <= 3 else f"axis {i}"
                     raise ValidationError(field_name, f"unbounded polytope: it extends to infinity along {direction}")
-        V = _vertex_enumeration(A_arr, b_arr)
-        if V.shape[0] < d + 1:  # pragma: no cover - excluded by the checks above
+                if res.status == 0 and abs(res.x[i]) > MAX_COORDINATE:
+                    _check_magnitude(res.x[i:i + 1], field_name, "vertex coordinates")
+        V = _halfspace_vertices(A_arr, b_arr, centre, field_name)
+        if V.shape[0] < d + 1:
             raise ValidationError(field_name, "degenerate polytope (too few vertices)")
         if d == 2:
             V = _order_ccw(V)
@@ -316,6 +444,10 @@ class Polytope:
     def contains(self, y: Any, tol: float = 0.0) -> np.ndarray | bool:
         """Whether point(s) ``y`` (..., d) satisfy ``A y <= b + tol``."""
         y = np.asarray(y, dtype=float)
+        if not np.all(np.isfinite(y)):
+            raise ValidationError("y", "contains NaN or infinite values")
+        if not np.isfinite(tol):
+            raise ValidationError("tol", f"must be a finite number, got {tol!r}")
         out = np.all(y @ self.A.T <= self.b + tol, axis=-1)
         return bool(out) if out.ndim == 0 else out
 

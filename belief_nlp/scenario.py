@@ -36,6 +36,12 @@ File schema (TOML or JSON, the same tree in both)::
 All lengths in metres. ``chi2`` is the ``confidence`` quantile of the chi-square
 law with ``d`` degrees of freedom unless given directly. The full schema, units
 and validation rules are in ``docs/scenario_schema.md``.
+
+Limits (``belief_nlp._limits``): files up to 8 MiB and 32 levels of nesting;
+coordinates within +-1e6 m; eigenvalues of ``start.P``, ``noise.W`` and
+``noise.W_rate`` at most 1e12 m^2, and those of the noise at least 1e-20 m^2;
+``alpha`` <= 1e6; ``chi2`` <= 1e4; ``horizon.K`` <= 10000; at most 1000
+obstacles of at most 20000 vertices (10000 half-spaces) each.
 """
 
 from __future__ import annotations
@@ -43,7 +49,7 @@ from __future__ import annotations
 import json
 import math
 import numbers
-import tomllib
+import os
 from dataclasses import dataclass, field
 from functools import cached_property
 from importlib import resources
@@ -52,8 +58,11 @@ from typing import Any
 
 import numpy as np
 
+from ._limits import (MAX_ALPHA, MAX_CHI2, MAX_HORIZON, MAX_NAME_LENGTH, MAX_OBSTACLES, MAX_SCENARIO_FILE_BYTES,
+                      MAX_VARIANCE, MIN_NOISE_VARIANCE, check_document, parse_document, read_file)
 from .errors import ScenarioFileError, ValidationError
-from .polytope import Polytope, _as_finite_array
+from .path import _values_equal
+from .polytope import Polytope, _as_finite_array, _check_magnitude, _frozen
 
 __all__ = ["Scenario", "load_scenario", "save_scenario", "list_scenarios", "scenario_from_dict"]
 
@@ -65,12 +74,22 @@ def _is_real(value: Any) -> bool:
     return isinstance(value, (numbers.Real, np.floating, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
+def _finite(value: Any) -> bool:
+    """A real number with a finite float value (a 400-digit int is not: float() overflows)."""
+    try:
+        return _is_real(value) and math.isfinite(float(value))
+    except OverflowError:
+        return False
+
+
 def _covariance(value: Any, d: int, field_name: str, allow_singular: bool) -> np.ndarray:
     """Parse a scalar / diagonal / full matrix and check symmetry and definiteness.
 
     A scalar ``s`` means ``s I``; a list of ``d`` numbers is the diagonal.
     """
     if _is_real(value):
+        if not _finite(value):
+            raise ValidationError(field_name, f"contains NaN or infinite values (got {value!r:.40})")
         arr = float(value) * np.eye(d)
     else:
         try:
@@ -91,7 +110,12 @@ def _covariance(value: Any, d: int, field_name: str, allow_singular: bool) -> np
         raise ValidationError(field_name, f"must be a {d}x{d} matrix for a {d}-D scenario, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValidationError(field_name, "contains NaN or infinite values")
+    # |P_ij| <= lambda_max for a covariance: checking the entries first keeps
+    # the eigenvalue computation away from overflow.
     scale = max(float(np.max(np.abs(arr))), 1e-300)
+    if scale > MAX_VARIANCE:
+        raise ValidationError(field_name, f"entries and eigenvalues must be at most {MAX_VARIANCE:g} m^2 "
+                                          f"(a standard deviation of 1e6 m), got {scale:.3g}")
     if not np.allclose(arr, arr.T, rtol=0, atol=1e-12 * scale):
         raise ValidationError(field_name, "covariance is not symmetric")
     eig = np.linalg.eigvalsh(0.5 * (arr + arr.T))
@@ -100,6 +124,12 @@ def _covariance(value: Any, d: int, field_name: str, allow_singular: bool) -> np
             raise ValidationError(field_name, f"covariance is not positive semidefinite (eigenvalue {eig[0]:.3g})")
     elif eig[0] <= 1e-12 * scale:
         raise ValidationError(field_name, f"covariance is not positive definite (smallest eigenvalue {eig[0]:.3g})")
+    elif eig[0] < MIN_NOISE_VARIANCE:
+        raise ValidationError(field_name, f"smallest eigenvalue {eig[0]:.3g} is below the limit of "
+                                          f"{MIN_NOISE_VARIANCE:g} m^2")
+    if eig[-1] > MAX_VARIANCE:
+        raise ValidationError(field_name, f"largest eigenvalue {eig[-1]:.3g} is above the limit of "
+                                          f"{MAX_VARIANCE:g} m^2")
     return arr
 
 
@@ -168,7 +198,14 @@ class Scenario:
         return tuple(self.obstacles) + self.walls
 
     def with_options(self, **changes: Any) -> "Scenario":
-        """A copy with some fields replaced (validated again)."""
+        """A copy with some fields replaced (validated again).
+
+        The keywords are the constructor's fields (``x0``, ``P0``, ``W``,
+        ``chi2_value``, ``K``, ...); any other raises ValidationError naming it.
+        """
+        unknown = sorted(set(changes) - set(self.__dataclass_fields__))
+        if unknown:
+            raise ValidationError(unknown[0], f"unknown scenario field; known: {', '.join(self.__dataclass_fields__)}")
         data = {f: getattr(self, f) for f in self.__dataclass_fields__}
         # Choosing one of confidence / chi2_value drops the other.
         if "chi2_value" in changes and "confidence" not in changes:
@@ -204,7 +241,8 @@ class Scenario:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Scenario):
             return NotImplemented
-        return self.to_dict() == other.to_dict()
+        # NaN-aware: the free-form planner table may hold a NaN (checked only when planning)
+        return _values_equal(self.to_dict(), other.to_dict())
 
     __hash__ = None  # type: ignore[assignment]
 
@@ -231,6 +269,8 @@ def _validate(sc: Scenario) -> None:
     if isinstance(sc.obstacles, (str, bytes, dict, Polytope)) or not hasattr(sc.obstacles, "__iter__"):
         raise ValidationError("obstacles", f"must be a sequence of Polytope, got {type(sc.obstacles).__name__}")
     obstacles = tuple(sc.obstacles)
+    if len(obstacles) > MAX_OBSTACLES:
+        raise ValidationError("obstacles", f"{len(obstacles)} obstacles is more than the limit of {MAX_OBSTACLES}")
     for i, ob in enumerate(obstacles):
         if not isinstance(ob, Polytope):
             raise ValidationError(f"obstacles[{i}]", f"must be a Polytope, got {type(ob).__name__}")
@@ -245,31 +285,36 @@ def _validate(sc: Scenario) -> None:
     x0 = _as_finite_array(sc.x0, "start.x", 1)
     if x0.size != d:
         raise ValidationError("start.x", f"must have {d} entries for a {d}-D scenario, got {x0.size}")
-    object.__setattr__(sc, "x0", x0)
-    object.__setattr__(sc, "P0", _covariance(sc.P0, d, "start.P", allow_singular=True))
-    object.__setattr__(sc, "W", _covariance(sc.W, d, "noise.W", allow_singular=False))
-    object.__setattr__(sc, "W_rate", _covariance(sc.W_rate, d, "noise.W_rate", allow_singular=False))
+    _check_magnitude(x0, "start.x")
+    # Private read-only copies: nobody can change a validated scenario in place.
+    object.__setattr__(sc, "x0", _frozen(x0))
+    object.__setattr__(sc, "P0", _frozen(_covariance(sc.P0, d, "start.P", allow_singular=True)))
+    object.__setattr__(sc, "W", _frozen(_covariance(sc.W, d, "noise.W", allow_singular=False)))
+    object.__setattr__(sc, "W_rate", _frozen(_covariance(sc.W_rate, d, "noise.W_rate", allow_singular=False)))
 
-    if not _is_real(sc.alpha) or not math.isfinite(sc.alpha) or sc.alpha < 0:
-        raise ValidationError("alpha", f"must be a finite number >= 0, got {sc.alpha!r}")
+    if not _finite(sc.alpha) or not 0 <= float(sc.alpha) <= MAX_ALPHA:
+        raise ValidationError("alpha", f"must be a finite number >= 0 and <= {MAX_ALPHA:g}, got {sc.alpha!r:.40}")
     object.__setattr__(sc, "alpha", float(sc.alpha))
     if sc.chi2_value is not None and sc.confidence is not None:
         raise ValidationError("chi2", "give either 'confidence' or 'chi2', not both")
     if sc.chi2_value is not None:
-        if not _is_real(sc.chi2_value) or not math.isfinite(sc.chi2_value) or sc.chi2_value <= 0:
-            raise ValidationError("chi2", f"must be a finite number > 0, got {sc.chi2_value!r}")
+        if not _finite(sc.chi2_value) or not 0 < float(sc.chi2_value) <= MAX_CHI2:
+            raise ValidationError("chi2", f"must be a finite number > 0 and <= {MAX_CHI2:g}, got {sc.chi2_value!r:.40}")
         object.__setattr__(sc, "chi2_value", float(sc.chi2_value))
     else:
         c = 0.9 if sc.confidence is None else sc.confidence
-        if not _is_real(c) or not math.isfinite(c) or not 0 < c < 1:
-            raise ValidationError("confidence", f"must lie strictly between 0 and 1, got {c!r}")
+        if not _finite(c) or not 0 < float(c) < 1:
+            raise ValidationError("confidence", f"must lie strictly between 0 and 1, got {c!r:.40}")
         object.__setattr__(sc, "confidence", float(c))
     if sc.K is not None:
         if not isinstance(sc.K, (int, np.integer)) or isinstance(sc.K, (bool, np.bool_)) or sc.K < 1:
-            raise ValidationError("horizon.K", f"must be a positive integer, got {sc.K!r}")
+            raise ValidationError("horizon.K", f"must be a positive integer, got {sc.K!r:.40}")
+        if sc.K > MAX_HORIZON:
+            raise ValidationError("horizon.K", f"{sc.K} is more than the limit of {MAX_HORIZON} steps")
         object.__setattr__(sc, "K", int(sc.K))
     if not isinstance(sc.planner, dict):
         raise ValidationError("planner", f"must be a table of planner options, got {type(sc.planner).__name__}")
+    object.__setattr__(sc, "planner", dict(sc.planner))  # not shared with the caller
 
     # target inside the domain
     slack = sc.domain.b[None, :] - sc.target.vertices @ sc.domain.A.T
@@ -303,6 +348,7 @@ def scenario_from_dict(data: Any, source: str = "scenario") -> Scenario:
     """
     if not isinstance(data, dict):
         raise ScenarioFileError("file", f"{source}: the top level must be a table/object, got {type(data).__name__}")
+    check_document(data, source)  # nesting depth and integer sizes of dicts built in memory too
     unknown = sorted(set(data) - set(_TOP_KEYS))
     if unknown:
         raise ScenarioFileError(unknown[0], f"unknown key in {source} (known keys: {', '.join(_TOP_KEYS)})")
@@ -333,6 +379,8 @@ def scenario_from_dict(data: Any, source: str = "scenario") -> Scenario:
     obstacles = data.get("obstacles", [])
     if not isinstance(obstacles, list):
         raise ScenarioFileError("obstacles", f"must be an array of tables, got {type(obstacles).__name__}")
+    if len(obstacles) > MAX_OBSTACLES:  # before building any of them
+        raise ValidationError("obstacles", f"{len(obstacles)} obstacles is more than the limit of {MAX_OBSTACLES}")
     planner = data.get("planner", {})
     if not isinstance(planner, dict):
         raise ScenarioFileError("planner", f"must be a table of planner options, got {type(planner).__name__}")
@@ -376,42 +424,55 @@ def list_scenarios() -> list[str]:
     return sorted(p.name[:-5] for p in files if p.name.endswith(".toml"))
 
 
-def load_scenario(name_or_path: str | Path) -> Scenario:
+def load_scenario(name_or_path: str | os.PathLike | Scenario) -> Scenario:
     """Load a built-in scenario by name, or a ``.toml`` / ``.json`` file.
 
     Files whose suffix is neither are read as TOML. Faults raise
     :class:`~belief_nlp.errors.ScenarioFileError` (field ``"file"`` for an
-    unreadable or malformed file, ``"name"`` for an unknown built-in).
+    unreadable, malformed, too large (> 8 MiB) or too deeply nested (> 32
+    levels) file, ``"name"`` for an unknown built-in or a name longer than
+    4096 characters); a value other than a name, a path or a Scenario raises
+    :class:`~belief_nlp.errors.ValidationError` (field ``"scenario"``).
     """
     if isinstance(name_or_path, Scenario):
         return name_or_path
-    text_name = str(name_or_path)
+    if not isinstance(name_or_path, (str, os.PathLike)):
+        raise ValidationError("scenario", f"must be a built-in name, a scenario file or a Scenario, "
+                                          f"got {type(name_or_path).__name__}")
+    text_name = os.fsdecode(name_or_path)
+    if len(text_name) > MAX_NAME_LENGTH:
+        raise ScenarioFileError("name", f"a scenario name or file name of {len(text_name)} characters is longer "
+                                        f"than the limit of {MAX_NAME_LENGTH}")
     path = Path(text_name)
-    if path.suffix.lower() in (".toml", ".json") or path.exists():
-        if not path.exists():
-            raise ScenarioFileError("file", f"no such scenario file: {text_name}")
-        if not path.is_file():
-            raise ScenarioFileError("file", f"not a file: {text_name}")
-        raw = path.read_bytes()
+    try:
+        is_file = path.suffix.lower() in (".toml", ".json") or path.exists()
+    except (OSError, ValueError):  # a name the OS refuses (too long a component, NUL): not a file
+        is_file = False
+    if is_file:
+        raw = read_file(path, "file", MAX_SCENARIO_FILE_BYTES, "scenario file")
         fmt = "json" if path.suffix.lower() == ".json" else "toml"
         return _parse(raw, fmt, text_name)
     if text_name in list_scenarios():
         raw = resources.files(_BUILTIN_PACKAGE).joinpath(f"{text_name}.toml").read_bytes()
         return _parse(raw, "toml", text_name)
-    raise ScenarioFileError("name", f"unknown scenario {text_name!r}; built-ins: {', '.join(list_scenarios())}")
+    shown = text_name if len(text_name) <= 80 else text_name[:80] + "..."
+    raise ScenarioFileError("name", f"unknown scenario {shown!r}; built-ins: {', '.join(list_scenarios())}")
 
 
 def _parse(raw: bytes, fmt: str, source: str) -> Scenario:
-    try:
-        text = raw.decode("utf-8")
-        data = json.loads(text) if fmt == "json" else tomllib.loads(text)
-    except (json.JSONDecodeError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ScenarioFileError("file", f"{source}: malformed {fmt.upper()}: {exc}") from exc
-    return scenario_from_dict(data, source)
+    return scenario_from_dict(parse_document(raw, fmt, source, "file"), source)
 
 
-def save_scenario(scenario: Scenario, path: str | Path) -> Path:
-    """Write ``scenario`` as TOML or JSON (by suffix); :func:`load_scenario` reads it back equal."""
+def save_scenario(scenario: Scenario, path: str | os.PathLike) -> Path:
+    """Write ``scenario`` as TOML or JSON (by suffix); :func:`load_scenario` reads it back equal.
+
+    A file that cannot be written (missing folder, no permission) raises
+    :class:`~belief_nlp.errors.ScenarioFileError` naming ``file``.
+    """
+    if not isinstance(scenario, Scenario):
+        raise ValidationError("scenario", f"must be a Scenario, got {type(scenario).__name__}")
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValidationError("path", f"must be a file name, got {type(path).__name__}")
     path = Path(path)
     data = scenario.to_dict()
     try:
@@ -427,5 +488,8 @@ def save_scenario(scenario: Scenario, path: str | Path) -> Path:
         if isinstance(exc, ValidationError):
             raise
         raise ValidationError("planner", f"cannot be written to {path.suffix}: {exc}") from exc
-    path.write_text(text)
+    try:
+        path.write_text(text)
+    except (OSError, ValueError) as exc:
+        raise ScenarioFileError("file", f"cannot write {str(path)[:200]}: {exc}") from exc
     return path

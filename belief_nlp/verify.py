@@ -13,20 +13,34 @@ This module deliberately shares no distance code with :mod:`belief_nlp.geometry`
 Sampling can only overestimate the minimum over s, so the refinement grid and
 the tolerance below matter; the exact minimisation lives in geometry.py and
 tests compare the two.
+
+Every comparison is written so that NaN fails it (``not margin >= -tol``,
+never ``margin < -tol``): a value that cannot be computed is a problem,
+never a pass. A path with non-finite entries, or entries too large to be
+squared safely (> 1e100), is reported unsafe without being measured.
 """
 
 from __future__ import annotations
 
+import numbers
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import nnls
 
 from . import belief
+from ._limits import MAX_VERIFY_SAMPLES
 from .errors import ValidationError
 from .path import BeliefPath
 from .polytope import Polytope
-from .scenario import Scenario
+from .scenario import Scenario, load_scenario
+
+# Path entries beyond this are not measured (their squares and products
+# would overflow); the path is reported unsafe instead.
+_MAX_CHECKABLE = 1e100
+# Samples x polygon vertices handled at once by the 2-D distance (bounds memory).
+_CHUNK_ENTRIES = 2_000_000
 
 __all__ = ["verify", "VerificationReport"]
 
@@ -68,8 +82,23 @@ class VerificationReport:
     tol: float
     problems: list[str] = field(default_factory=list)
 
+    def __post_init__(self) -> None:
+        # Read-only copies, like the path's arrays: a report cannot be edited
+        # into saying something else.
+        for name in ("transition_margins", "target_margins_m", "kalman_residual", "sensing_min_eig",
+                     "noise_residual"):
+            arr = np.array(getattr(self, name), dtype=float)
+            arr.flags.writeable = False
+            setattr(self, name, arr)
+
     def __bool__(self) -> bool:
         return self.safe
+
+    def __repr__(self) -> str:
+        shown = "; ".join(p[:100] for p in self.problems[:3])
+        more = f" (+{len(self.problems) - 3} more)" if len(self.problems) > 3 else ""
+        return (f"VerificationReport(safe={self.safe}, min_margin={self.min_margin:.4g}, worst={self.worst!r}, "
+                f"problems={len(self.problems)}{': ' + shown + more if shown else ''})")
 
     def summary(self) -> str:
         head = "SAFE" if self.safe else "UNSAFE"
@@ -84,7 +113,7 @@ class VerificationReport:
             "worst": self.worst,
             "problems": list(self.problems),
             "max_kalman_residual": float(np.max(self.kalman_residual, initial=0.0)),
-            "min_target_margin_m": float(np.min(self.target_margins_m)),
+            "min_target_margin_m": float(np.min(self.target_margins_m, initial=np.inf)),
         }
 
 
@@ -148,7 +177,11 @@ def _sqdist_ldp(x: np.ndarray, P: np.ndarray, A: np.ndarray, b: np.ndarray) -> n
         G = -(A @ L)
         h = -c
         E = np.vstack([G.T, h[None, :]])
-        w, _ = nnls(E, f, maxiter=50 * (A.shape[0] + d))
+        try:
+            w, _ = nnls(E, f, maxiter=50 * (A.shape[0] + d))
+        except (RuntimeError, ValueError):  # no convergence, or non-finite data: undecided
+            out[i] = np.nan
+            continue
         r = E @ w - f
         if abs(r[-1]) < 1e-300:
             out[i] = np.inf
@@ -162,7 +195,10 @@ def _sqdist(x: np.ndarray, P: np.ndarray, poly: Polytope) -> np.ndarray:
     if poly.n_faces == 1:
         return _sqdist_halfspace(x, P, poly.A[0], float(poly.b[0]))
     if poly.dim == 2 and poly.vertices is not None:
-        return _sqdist_polygon(x, P, poly.vertices)
+        # (samples x vertices) temporaries: chunk so that memory stays bounded
+        step = max(1, _CHUNK_ENTRIES // poly.vertices.shape[0])
+        return np.concatenate([_sqdist_polygon(x[i:i + step], P[i:i + step], poly.vertices)
+                               for i in range(0, x.shape[0], step)])
     return _sqdist_ldp(x, P, poly.A, poly.b)
 
 
@@ -186,25 +222,105 @@ def _psd_part(P: np.ndarray, rtol: float = 1e-9) -> tuple[np.ndarray, np.ndarray
 
 
 # ------------------------------------------------------------------ verify
-def verify(scenario: Scenario, path: BeliefPath, n_samples: int = 101, n_refine: int = 41,
-           tol: float = 1e-6) -> VerificationReport:
+def _as_scenario(scenario: object) -> tuple[Scenario, bool]:
+    """(scenario, given by name?) from a Scenario, a built-in name or a scenario file."""
+    if isinstance(scenario, Scenario):
+        return scenario, False
+    if isinstance(scenario, (str, os.PathLike)):
+        return load_scenario(scenario), True
+    raise ValidationError("scenario", f"must be a Scenario, a built-in name or a scenario file, "
+                                      f"got {type(scenario).__name__}")
+
+
+def _as_path(path: object) -> BeliefPath:
+    """A BeliefPath, or the ``.path`` of a result (PlanResult, SmoothResult, ...)."""
+    if isinstance(path, BeliefPath):
+        return path
+    inner = getattr(path, "path", None) if not isinstance(path, (str, bytes, os.PathLike)) else None
+    if isinstance(inner, BeliefPath):
+        return inner
+    if inner is None and hasattr(path, "path") and not isinstance(path, (str, bytes, os.PathLike)):
+        why = getattr(path, "message", "")
+        raise ValidationError("path", f"the {type(path).__name__} holds no path" + (f" ({why})" if why else ""))
+    raise ValidationError("path", f"must be a BeliefPath or a result with a .path, got {type(path).__name__}")
+
+
+def _sample_count(name: str, value: object) -> int:
+    if (not isinstance(value, (numbers.Integral, np.integer)) or isinstance(value, (bool, np.bool_))
+            or not 2 <= int(value) <= MAX_VERIFY_SAMPLES):
+        raise ValidationError(name, f"must be an integer from 2 to {MAX_VERIFY_SAMPLES}, got {value!r:.40}")
+    return int(value)
+
+
+def _tolerance(value: object) -> float:
+    try:
+        ok = isinstance(value, (numbers.Real, np.floating, np.integer)) and not isinstance(value, (bool, np.bool_))
+        tol = float(value) if ok else float("nan")
+    except OverflowError:
+        tol = float("nan")
+    if not 0.0 <= tol < 1.0:  # also False for NaN
+        raise ValidationError("tol", f"must be a finite number with 0 <= tol < 1 (a fraction of chi2), "
+                                     f"got {value!r:.40}")
+    return tol
+
+
+def _unmeasured_report(path: BeliefPath, names: list[str], tol: float, problems: list[str]) -> VerificationReport:
+    """The report for a path that cannot be measured: unsafe, every margin NaN."""
+    K = path.K
+    nan = np.full(K, np.nan)
+    return VerificationReport(
+        safe=False, min_margin=-np.inf, worst=problems[0], transition_margins=np.full((K, len(names)), np.nan),
+        hazard_names=names, target_margins_m=np.full(0, np.nan), kalman_residual=nan, sensing_min_eig=nan,
+        noise_residual=nan, start_residual=np.nan, tol=tol, problems=problems)
+
+
+# ------------------------------------------------------------------ verify
+def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_samples: int = 101,
+           n_refine: int = 41, tol: float = 1e-6) -> VerificationReport:
     """Check a belief path for safety and consistency, independently of the solvers.
 
     Parameters
     ----------
-    n_samples : samples of s in [0, 1] per transition (endpoints included).
-    n_refine : extra samples in the interval on each side of the worst sample.
-    tol : margins >= -tol * chi2 count as clear. Relative residuals of the
-        Kalman recursion and of the noise model must be <= 1e-6.
+    scenario : a :class:`Scenario`, a built-in name or a scenario file.
+    path : a :class:`BeliefPath`, or a result holding one in ``.path``
+        (:class:`~belief_nlp.PlanResult`, :class:`~belief_nlp.SmoothResult`).
+    n_samples : samples of s in [0, 1] per transition (endpoints included),
+        an integer from 2 to 10001 (``belief_nlp._limits.MAX_VERIFY_SAMPLES``).
+    n_refine : extra samples in the interval on each side of the worst
+        sample, same range.
+    tol : margins >= -tol * chi2 count as clear; 0 <= tol < 1. Relative
+        residuals of the Kalman recursion and of the noise model must be <= 1e-6.
+
+    A margin that cannot be computed (NaN) is a failure, never a pass; a path
+    with non-finite entries is reported unsafe. Bad arguments raise
+    :class:`~belief_nlp.errors.ValidationError` naming the argument.
     """
-    if not isinstance(scenario, Scenario):
-        raise ValidationError("scenario", f"must be a Scenario, got {type(scenario).__name__}")
-    if not isinstance(path, BeliefPath):
-        raise ValidationError("path", f"must be a BeliefPath, got {type(path).__name__}")
+    scenario, by_name = _as_scenario(scenario)
+    path = _as_path(path)
+    n_samples = _sample_count("n_samples", n_samples)
+    n_refine = _sample_count("n_refine", n_refine)
+    tol = _tolerance(tol)
     if path.dim != scenario.dim:
-        raise ValidationError("path.x", f"path is {path.dim}-D but the scenario is {scenario.dim}-D")
-    if int(n_samples) < 2 or int(n_refine) < 2:
-        raise ValidationError("n_samples", f"n_samples and n_refine must be >= 2, got {n_samples}, {n_refine}")
+        # a named scenario that does not fit the path is the argument at fault
+        raise ValidationError("scenario" if by_name else "path.x",
+                              f"path is {path.dim}-D but the scenario is {scenario.dim}-D")
+    hazards = list(scenario.hazards)
+    names = [h.name for h in hazards]
+    unmeasurable = [f"path.{f} contains NaN or infinite values" for f in ("x", "P", "P_prior", "S")
+                    if not np.all(np.isfinite(getattr(path, f)))]
+    unmeasurable += [f"path.{f} has entries beyond {_MAX_CHECKABLE:g}; not checked" for f in ("x", "P", "P_prior", "S")
+                     if np.all(np.isfinite(getattr(path, f))) and np.max(np.abs(getattr(path, f))) > _MAX_CHECKABLE]
+    if unmeasurable:
+        return _unmeasured_report(path, names, tol, unmeasurable)
+    with np.errstate(all="ignore"):  # overflow gives NaN margins, which _measure reports
+        try:
+            return _measure(scenario, path, hazards, names, n_samples, n_refine, tol)
+        except np.linalg.LinAlgError as exc:  # an eigen-solver gave up: nothing is proven
+            return _unmeasured_report(path, names, tol, [f"numerical failure while measuring the path: {exc}"])
+
+
+def _measure(scenario: Scenario, path: BeliefPath, hazards: list[Polytope], names: list[str], n_samples: int,
+             n_refine: int, tol: float) -> VerificationReport:
     problems: list[str] = []
     # Covariances must be symmetric PSD for the ellipses to mean anything;
     # report it, and sample with the nearest PSD matrices so the rest of the
@@ -216,8 +332,6 @@ def verify(scenario: Scenario, path: BeliefPath, n_samples: int = 101, n_refine:
     for k in np.nonzero(Pp_bad)[0]:
         problems.append(f"P_prior_{k} is not a covariance (not symmetric positive semidefinite)")
     chi2 = scenario.chi2
-    hazards = list(scenario.hazards)
-    names = [h.name for h in hazards]
     K = path.K
     Wk = path.transition_noise
     s = np.linspace(0.0, 1.0, n_samples)
@@ -227,14 +341,15 @@ def verify(scenario: Scenario, path: BeliefPath, n_samples: int = 101, n_refine:
         Ps = P_post[:-1, None] + s[None, :, None, None] * Wk[:, None]
         vals = _sqdist(xs.reshape(-1, scenario.dim), Ps.reshape(-1, scenario.dim, scenario.dim), h)
         vals = vals.reshape(K, n_samples)
-        # refine around the worst sample of each transition
-        i = np.argmin(vals, axis=1)
+        # refine around the worst sample of each transition (a NaN sample counts as the worst)
+        i = np.argmin(np.where(np.isnan(vals), -np.inf, vals), axis=1)
         lo = s[np.maximum(i - 1, 0)]
         hi = s[np.minimum(i + 1, n_samples - 1)]
         r = lo[:, None] + np.linspace(0, 1, n_refine)[None, :] * (hi - lo)[:, None]
         xr = path.x[:-1, None, :] + r[..., None] * np.diff(path.x, axis=0)[:, None, :]
         Pr = P_post[:-1, None] + r[..., None, None] * Wk[:, None]
         vr = _sqdist(xr.reshape(-1, scenario.dim), Pr.reshape(-1, scenario.dim, scenario.dim), h)
+        # np.minimum and min() propagate NaN: an undecidable sample keeps the pair undecided
         margins[:, j] = np.minimum(vals.min(axis=1), vr.reshape(K, n_refine).min(axis=1)) - chi2
 
     atol = tol * chi2
@@ -255,7 +370,10 @@ def verify(scenario: Scenario, path: BeliefPath, n_samples: int = 101, n_refine:
         except np.linalg.LinAlgError:  # prior not PSD, or P_prior^-1 + S singular
             kal[k - 1] = np.inf
         Sn = np.linalg.norm(path.S[k])
-        smin[k - 1] = np.linalg.eigvalsh(path.S[k])[0] / Sn if Sn > 0 else 0.0
+        try:
+            smin[k - 1] = np.linalg.eigvalsh(path.S[k])[0] / Sn if Sn > 0 else 0.0
+        except np.linalg.LinAlgError:
+            smin[k - 1] = np.nan
     # noise model
     if path.noise == "per_step":
         W_model = np.broadcast_to(scenario.W, Wk.shape)
@@ -267,29 +385,36 @@ def verify(scenario: Scenario, path: BeliefPath, n_samples: int = 101, n_refine:
                           np.linalg.norm(path.P[0] - scenario.P0) / max(np.linalg.norm(scenario.P0), 1e-300)
                           if np.linalg.norm(scenario.P0) > 0 else np.linalg.norm(path.P[0])))
 
-    worst_idx = np.unravel_index(np.argmin(margins), margins.shape) if margins.size else None
-    min_trans = float(margins[worst_idx]) if worst_idx is not None else np.inf
-    min_target = float(np.min(t_maha))
+    # The worst pair and the minimum treat NaN as -inf: undecided is worst.
+    ranked = np.where(np.isnan(margins), -np.inf, margins)
+    worst_idx = np.unravel_index(np.argmin(ranked), ranked.shape) if ranked.size else None
+    min_trans = float(ranked[worst_idx]) if worst_idx is not None else np.inf
+    t_ranked = np.where(np.isnan(t_maha), -np.inf, t_maha)
+    min_target = float(np.min(t_ranked))
     if min_trans <= min_target:
         min_margin = min_trans
         worst = f"transition {worst_idx[0] + 1} vs {names[worst_idx[1]]}"
     else:
         min_margin = min_target
-        worst = f"target face {int(np.argmin(t_maha))} (final ellipse containment)"
-    bad = np.argwhere(margins < -atol)
+        worst = f"target face {int(np.argmin(t_ranked))} (final ellipse containment)"
+    # Each test is "not (good)", so that NaN counts as a failure.
+    bad = np.argwhere(~(margins >= -atol))
     for k, j in bad[:20]:
-        problems.append(f"transition {k + 1} collides with {names[j]} (margin {margins[k, j]:.4g})")
+        if np.isnan(margins[k, j]):
+            problems.append(f"transition {k + 1} vs {names[j]} cannot be decided (margin NaN)")
+        else:
+            problems.append(f"transition {k + 1} collides with {names[j]} (margin {margins[k, j]:.4g})")
     if len(bad) > 20:
         problems.append(f"... and {len(bad) - 20} more colliding transition/hazard pairs")
-    for n_ in np.nonzero(t_maha < -atol)[0]:
+    for n_ in np.nonzero(~(t_maha >= -atol))[0]:
         problems.append(f"final ellipse leaves the target across face {n_} ({t_m[n_]:.3g} m)")
-    for k in np.nonzero(kal > 1e-6)[0]:
+    for k in np.nonzero(~(kal <= 1e-6))[0]:
         problems.append(f"P_{k + 1} is not the Kalman update of P_prior_{k + 1} and S_{k + 1} (rel. err {kal[k]:.3g})")
-    for k in np.nonzero(smin < -1e-8)[0]:
+    for k in np.nonzero(~(smin >= -1e-8))[0]:
         problems.append(f"S_{k + 1} is not positive semidefinite (min eig / norm {smin[k]:.3g})")
-    for k in np.nonzero(noise_res > 1e-6)[0]:
+    for k in np.nonzero(~(noise_res <= 1e-6))[0]:
         problems.append(f"transition {k + 1} noise does not match the scenario's {path.noise} model (rel. err {noise_res[k]:.3g})")
-    if start_res > 1e-9:
+    if not start_res <= 1e-9:
         problems.append(f"path does not start at the scenario's start belief (rel. err {start_res:.3g})")
     return VerificationReport(
         safe=not problems, min_margin=min_margin, worst=worst, transition_margins=margins,

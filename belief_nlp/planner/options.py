@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from .._limits import MAX_ALPHA, MAX_PLANNER_NODES, MAX_VARIANCE
 from ..errors import ValidationError
 
 __all__ = ["PlannerOptions", "resolve_options", "METRICS", "NOISE_MODELS", "INFO_UNITS", "default_gamma"]
@@ -137,9 +138,12 @@ def _positive_int(name: str, v: Any, minimum: int = 1) -> int:
 
 def _real(name: str, v: Any, low: float | None = None, high: float | None = None,
           low_open: bool = False, high_open: bool = False) -> float:
-    if not _is_real(v) or not math.isfinite(float(v)):
-        raise ValidationError(name, f"must be a finite number, got {v!r}")
-    x = float(v)
+    try:
+        x = float(v) if _is_real(v) else math.nan
+    except OverflowError:  # an integer too large for a float
+        x = math.nan
+    if not math.isfinite(x):
+        raise ValidationError(name, f"must be a finite number, got {v!r:.40}")
     if low is not None and (x < low or (low_open and x == low)):
         raise ValidationError(name, f"must be {'>' if low_open else '>='} {low:g}, got {x:g}")
     if high is not None and (x > high or (high_open and x == high)):
@@ -174,10 +178,12 @@ def resolve_options(scenario_defaults: dict | None, scenario_alpha: float, **kwa
     o.update(merged)
 
     o["n_nodes"] = _positive_int("n_nodes", o["n_nodes"], 2)
+    if o["n_nodes"] > MAX_PLANNER_NODES:
+        raise ValidationError("n_nodes", f"{o['n_nodes']} is more than the limit of {MAX_PLANNER_NODES}")
     if o["seed"] is not None and (not _is_int(o["seed"]) or int(o["seed"]) < 0):
-        raise ValidationError("seed", f"must be a non-negative integer or None, got {o['seed']!r}")
+        raise ValidationError("seed", f"must be a non-negative integer or None, got {o['seed']!r:.40}")
     o["seed"] = None if o["seed"] is None else int(o["seed"])
-    o["alpha"] = float(scenario_alpha) if o["alpha"] is None else _real("alpha", o["alpha"], 0.0)
+    o["alpha"] = float(scenario_alpha) if o["alpha"] is None else _real("alpha", o["alpha"], 0.0, MAX_ALPHA)
     o["metric"] = _choice("metric", o["metric"], METRICS)
     o["info_unit"] = _choice("info_unit", o["info_unit"], INFO_UNITS)
     if o["info_unit"] == "bits" and o["metric"] != "entropy":
@@ -190,12 +196,13 @@ def resolve_options(scenario_defaults: dict | None, scenario_alpha: float, **kwa
     er = o["eig_range"]
     try:
         lo, hi = (float(v) for v in er) if not isinstance(er, (str, bytes)) and len(er) == 2 else (None, None)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         lo, hi = None, None
-    if lo is None or not (math.isfinite(lo) and math.isfinite(hi)) or not 0 < lo <= hi:
-        raise ValidationError("eig_range", f"must be a pair (low, high) with 0 < low <= high, finite, got {er!r}")
+    if lo is None or not (math.isfinite(lo) and math.isfinite(hi)) or not 0 < lo <= hi <= MAX_VARIANCE:
+        raise ValidationError("eig_range", f"must be a pair (low, high) with 0 < low <= high <= {MAX_VARIANCE:g} "
+                                           f"(m^2), got {er!r:.60}")
     o["eig_range"] = (lo, hi)
-    o["eig_ratio"] = _real("eig_ratio", o["eig_ratio"], 1.0)
+    o["eig_ratio"] = _real("eig_ratio", o["eig_ratio"], 1.0, 1e12)
     o["steering"] = _choice("steering", o["steering"], STEERING)
     o["max_radius"] = _real("max_radius", o["max_radius"], 0.0, low_open=True)
     if o["gamma"] is not None:

@@ -4,15 +4,19 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+import os
+import zipfile
+import zlib
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .._limits import check_npz, load_json, parse_document
 from ..belief import NATS_PER_BIT
-from ..errors import ValidationError
-from ..path import BeliefPath
+from ..errors import ScenarioFileError, ValidationError
+from ..path import BeliefPath, _values_equal
 
 __all__ = ["PlanResult", "TreeView"]
 
@@ -39,6 +43,39 @@ class TreeView:
     live: np.ndarray
     goal: np.ndarray
 
+    def __post_init__(self) -> None:
+        # private read-only copies, in the dtypes the fields document
+        for name, dtype in (("x", float), ("P", float), ("parent", np.int64), ("cost", float), ("live", bool),
+                            ("goal", bool)):
+            try:
+                arr = np.array(getattr(self, name), dtype=dtype)
+            except (TypeError, ValueError, OverflowError) as exc:
+                raise ValidationError(f"tree.{name}", f"must be an array of {np.dtype(dtype).name}: "
+                                                      f"{str(exc)[:200]}") from exc
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+        n = self.x.shape[0] if self.x.ndim == 2 else -1
+        d = self.x.shape[1] if self.x.ndim == 2 else 0
+        if n < 0:
+            raise ValidationError("tree.x", f"must have shape (n, d), got {self.x.shape}")
+        if self.P.shape != (n, d, d):
+            raise ValidationError("tree.P", f"must have shape {(n, d, d)}, got {self.P.shape}")
+        for name in ("parent", "cost", "live", "goal"):
+            if getattr(self, name).shape != (n,):
+                raise ValidationError(f"tree.{name}", f"must have shape {(n,)}, got {getattr(self, name).shape}")
+        for name in ("x", "P"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise ValidationError(f"tree.{name}", "contains NaN or infinite values")
+        if n and (np.any(self.parent < -1) or np.any(self.parent >= n)):
+            raise ValidationError("tree.parent", f"entries must be -1 or node indices below {n}")
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, TreeView):
+            return NotImplemented
+        return all(_values_equal(a, b) for a, b in zip(self.to_arrays().values(), other.to_arrays().values()))
+
+    __hash__ = None  # type: ignore[assignment]
+
     def __len__(self) -> int:
         return int(self.x.shape[0])
 
@@ -59,6 +96,11 @@ def _num(v: float) -> float | str:
 
 
 def _unnum(v: Any) -> float:
+    """Inverse of :func:`_num`: a number, or one of the strings 'inf', '-inf', 'nan'."""
+    if isinstance(v, str) and v not in ("inf", "-inf", "nan"):
+        raise ValidationError("result", f"expected a number or 'inf'/'nan', got {v[:40]!r}")
+    if isinstance(v, bool) or not isinstance(v, (str, int, float)):
+        raise ValidationError("result", f"expected a number, got {type(v).__name__}")
     return float(v)
 
 
@@ -118,6 +160,27 @@ class PlanResult:
     options: dict = field(default_factory=dict)
     seed: int | None = None
     scenario: str = ""
+
+    def __post_init__(self) -> None:
+        if self.path is not None and not isinstance(self.path, BeliefPath):
+            raise ValidationError("path", f"must be a BeliefPath or None, got {type(self.path).__name__}")
+        if self.tree is not None and not isinstance(self.tree, TreeView):
+            raise ValidationError("tree", f"must be a TreeView or None, got {type(self.tree).__name__}")
+        try:
+            history = np.array(self.cost_history, dtype=float).reshape(-1)
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise ValidationError("cost_history", f"must be a list of numbers: {str(exc)[:200]}") from exc
+        history.flags.writeable = False
+        self.cost_history = history
+
+    def __eq__(self, other: object) -> bool:
+        """Field by field, NaN equal to NaN (a failed run's travel is NaN), so
+        that a result reloaded from a file compares equal to the original."""
+        if not isinstance(other, PlanResult):
+            return NotImplemented
+        return all(_values_equal(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
+
+    __hash__ = None  # type: ignore[assignment]
 
     # ------------------------------------------------------------- units
     @property
@@ -195,62 +258,92 @@ class PlanResult:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "PlanResult":
+        """A result from :meth:`to_dict` output; faults raise ValidationError."""
         if not isinstance(data, dict) or data.get("format") != _FORMAT:
             raise ValidationError("result", f"not a {_FORMAT} document")
-        tree = data.get("tree")
-        return cls(
-            success=bool(data["success"]), message=str(data["message"]),
-            path=BeliefPath.from_dict(data["path"]) if data.get("path") is not None else None,
-            cost=_unnum(data["cost"]), travel=_unnum(data["travel"]), information=_unnum(data["information"]),
-            alpha=float(data["alpha"]), metric=data["metric"], info_unit=data["info_unit"], noise=data["noise"],
-            cost_history=np.array([_unnum(v) for v in data["cost_history"]], dtype=float),
-            first_solution_iteration=data.get("first_solution_iteration"),
-            tree=TreeView(np.array(tree["x"], float), np.array(tree["P"], float),
-                          np.array(tree["parent"], np.int64), np.array(tree["cost"], float),
-                          np.array(tree["live"], bool), np.array(tree["goal"], bool)) if tree else None,
-            stats=dict(data.get("stats") or {}), timings=dict(data.get("timings") or {}),
-            verification=data.get("verification"), options=dict(data.get("options") or {}),
-            seed=data.get("seed"), scenario=str(data.get("scenario", "")),
-        )
+        try:
+            tree = data.get("tree")
+            path = data.get("path")
+            return cls(
+                success=bool(data["success"]), message=str(data["message"]),
+                path=BeliefPath.from_dict(path) if path is not None else None,
+                cost=_unnum(data["cost"]), travel=_unnum(data["travel"]), information=_unnum(data["information"]),
+                alpha=_unnum(data["alpha"]), metric=str(data["metric"]), info_unit=str(data["info_unit"]),
+                noise=str(data["noise"]),
+                cost_history=np.array([_unnum(v) for v in data["cost_history"]], dtype=float),
+                first_solution_iteration=data.get("first_solution_iteration"),
+                tree=TreeView(tree["x"], tree["P"], tree["parent"], tree["cost"], tree["live"], tree["goal"])
+                if tree else None,
+                stats=dict(data.get("stats") or {}), timings=dict(data.get("timings") or {}),
+                verification=data.get("verification"), options=dict(data.get("options") or {}),
+                seed=data.get("seed"), scenario=str(data.get("scenario", "")),
+            )
+        except ValidationError:
+            raise
+        except KeyError as exc:
+            raise ValidationError(f"result.{exc.args[0]}", "missing") from exc
+        except (TypeError, ValueError, IndexError, AttributeError) as exc:
+            raise ValidationError("result", f"malformed {_FORMAT} document: {str(exc)[:200]}") from exc
 
-    def save(self, path: str | Path) -> Path:
+    def save(self, path: str | os.PathLike) -> Path:
         """Write as ``.json`` (one document) or ``.npz`` (arrays + a JSON header);
-        :meth:`load` reads either back."""
+        :meth:`load` reads either back. A file that cannot be written raises
+        :class:`~belief_nlp.errors.ScenarioFileError` (field ``path``)."""
+        if not isinstance(path, (str, os.PathLike)):
+            raise ValidationError("path", f"must be a file name, got {type(path).__name__}")
         path = Path(path)
-        if path.suffix == ".json":
-            path.write_text(json.dumps(self.to_dict(), allow_nan=False))
-        elif path.suffix == ".npz":
-            # The path (a few dozen numbers) rides in the JSON header; the tree and
-            # the history, which grow with the node count, are arrays.
-            header = self._header()
-            header["path"] = self.path.to_dict() if self.path is not None else None
-            arrays: dict[str, np.ndarray] = {"header": np.array(json.dumps(header, allow_nan=False)),
-                                             "cost_history": np.asarray(self.cost_history, float)}
-            if self.tree is not None:
-                arrays.update({f"tree_{k}": v for k, v in self.tree.to_arrays().items()})
-            np.savez_compressed(path, **arrays)
-        else:
+        if path.suffix not in (".json", ".npz"):
             raise ValidationError("path", f"plan results are saved as .json or .npz, got {path.suffix!r}")
+        try:
+            if path.suffix == ".json":
+                text = json.dumps(self.to_dict(), allow_nan=False)
+            else:
+                # The path (a few dozen numbers) rides in the JSON header; the tree and
+                # the history, which grow with the node count, are arrays.
+                header = self._header()
+                header["path"] = self.path.to_dict() if self.path is not None else None
+                text = json.dumps(header, allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            raise ValidationError("result", f"cannot be written as JSON: {exc}") from exc
+        try:
+            if path.suffix == ".json":
+                path.write_text(text)
+            else:
+                arrays: dict[str, np.ndarray] = {"header": np.array(text),
+                                                 "cost_history": np.asarray(self.cost_history, float)}
+                if self.tree is not None:
+                    arrays.update({f"tree_{k}": v for k, v in self.tree.to_arrays().items()})
+                np.savez_compressed(path, **arrays)
+        except OSError as exc:
+            raise ScenarioFileError("path", f"cannot write {str(path)[:200]}: {exc}") from exc
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> "PlanResult":
-        """Read a result written by :meth:`save`."""
+    def load(cls, path: str | os.PathLike) -> "PlanResult":
+        """Read a result written by :meth:`save` (limits as :meth:`BeliefPath.load`).
+
+        File faults raise :class:`~belief_nlp.errors.ScenarioFileError`
+        (field ``path``), bad contents :class:`~belief_nlp.errors.ValidationError`.
+        """
+        if not isinstance(path, (str, os.PathLike)):
+            raise ValidationError("path", f"must be a file name, got {type(path).__name__}")
         path = Path(path)
-        if not path.is_file():
-            raise ValidationError("path", f"no such file: {path}")
-        if path.suffix == ".npz":
-            try:
-                with np.load(path, allow_pickle=False) as z:
-                    data = json.loads(str(z["header"]))
-                    data["cost_history"] = z["cost_history"].tolist()
-                    data["tree"] = ({k: z[f"tree_{k}"] for k in ("x", "P", "parent", "cost", "live", "goal")}
-                                    if "tree_x" in z.files else None)
-            except (OSError, ValueError, KeyError) as exc:
-                raise ValidationError("path", f"{path}: not a plan-result NPZ file: {exc}") from exc
-            return cls.from_dict(data)
+        if path.suffix != ".npz":
+            return cls.from_dict(load_json(path, "path"))
+        check_npz(path, "path")
         try:
-            data = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise ValidationError("path", f"{path}: malformed JSON: {exc}") from exc
+            with np.load(path, allow_pickle=False) as z:
+                header = z["header"]
+                history = z["cost_history"]
+                tree = ({k: z[f"tree_{k}"] for k in ("x", "P", "parent", "cost", "live", "goal")}
+                        if "tree_x" in z.files else None)
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+            raise ScenarioFileError("path", f"{str(path)[:200]}: not a plan-result NPZ file: {str(exc)[:200]}") from exc
+        if header.ndim != 0 or header.dtype.kind != "U":
+            raise ValidationError("result", "the NPZ header must be a single string")
+        data = parse_document(str(header), "json", f"{str(path)[:200]} (header)", "path")
+        if not isinstance(data, dict):
+            raise ValidationError("result", f"not a {_FORMAT} document")
+        data["cost_history"] = history.tolist() if history.dtype.kind in "iuf" else history
+        data["tree"] = tree
         return cls.from_dict(data)
