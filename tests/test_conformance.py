@@ -72,3 +72,15 @@ def test_a_method_answer_that_is_unsafe_is_never_returned():
     sc, path = bn.smoother.conformance.small_problem()
     res = bn.smooth(sc, path, method=reckless)
     assert not res.success and res.status == "infeasible_iterate" and res.safe
+
+
+def test_cli_lists_registered_methods_without_edits(capsys):
+    """The toy method was registered by its own file only; the CLI lists it and
+    accepts it as --method."""
+    from belief_nlp.cli import build_parser, main
+
+    assert main(["methods"]) == 0
+    out = capsys.readouterr().out
+    assert "ccp" in out and "ipopt" in out and "sensing_trim" in out and "shrink" in out
+    args = build_parser().parse_args(["smooth", "paper-multi", "--method", "sensing_trim"])
+    assert args.method == "sensing_trim"

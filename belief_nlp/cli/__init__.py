@@ -6,6 +6,7 @@ Minimum-sensing path planning in Gaussian belief space:
   plan       run IG-RRT* and write the plan (JSON/NPZ) and its figures
   smooth     smooth a path (CCP or IPOPT) read from a file, or plan first
   compare    smooth the same path with several methods and tabulate them
+  methods    list the registered smoothing methods and their options
   demo       the paper's experiment on paper-multi: Figs. 2-4 and GIFs
 
 Every subcommand takes ``--help``. Scenarios are built-in names (see
@@ -22,7 +23,7 @@ The package, one file per concern: ``parser`` (argparse machinery, value
 types, shared option groups), ``common`` (exit codes, the smoothing method
 names, the run object, loading and saving, logging, one-line messages),
 ``figures`` (shared figure helpers), and one module per subcommand --
-``scenarios``, ``plan``, ``smooth``, ``compare``, ``demo`` -- each with its
+``scenarios``, ``plan``, ``smooth``, ``compare``, ``methods``, ``demo`` -- each with its
 ``add_parser`` and its command.
 """
 
@@ -33,7 +34,7 @@ import sys
 from typing import Sequence
 
 from ..errors import BeliefNLPError, ValidationError
-from . import compare, demo, plan, scenarios, smooth
+from . import compare, demo, methods, plan, scenarios, smooth
 from .common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, FAILED_STATUSES, PROG, _one_line, _Run,
                      _setup_logging, smoothing_methods)  # noqa: F401 - smoothing_methods: public
 from .demo import DEMO_MAX_RADIUS  # noqa: F401 - public, as before the split
@@ -43,7 +44,7 @@ from .parser import _Parser, _UsageError
 __all__ = ["main", "build_parser", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_FAILED", "FAILED_STATUSES"]
 
 #: The subcommands, in the order ``belief-nlp --help`` lists them.
-_COMMANDS = (scenarios, plan, smooth, compare, demo)
+_COMMANDS = (scenarios, plan, smooth, compare, methods, demo)
 
 
 def build_parser() -> argparse.ArgumentParser:

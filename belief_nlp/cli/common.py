@@ -19,7 +19,7 @@ EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED = 0, 2, 3
 #: converged, max_iter, time_limit, non_monotone, infeasible_iterate -- end
 #: with a verified path that the user asked for (an iteration or time budget)
 #: or the best iterate before a rejected step, and exit 0 with the status shown.
-FAILED_STATUSES = ("solver_failed", "ipopt_failed")
+FAILED_STATUSES = ("solver_failed", "ipopt_failed", "above_start")
 
 PROG = "belief-nlp"
 
@@ -32,13 +32,11 @@ PAPER_METHOD = "ccp"
 
 
 def smoothing_methods() -> tuple[str, ...]:
-    """The smoothing methods the command line offers (``--method``, ``--methods``).
+    """The smoothing methods the command line offers (``--method``, ``--methods``):
+    the registry's, so a newly registered method needs no CLI edit."""
+    from ..smoother import available_methods
 
-    The one place the CLI takes them from: ``belief_nlp.smoothing.METHODS``.
-    """
-    from ..smoothing import METHODS
-
-    return tuple(METHODS)
+    return tuple(available_methods())
 
 
 def iterates_feasible(method: str) -> bool:

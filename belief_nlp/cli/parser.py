@@ -139,7 +139,7 @@ def _planner_args(p: argparse.ArgumentParser, nodes: int = 500, title: str = "pl
                    help="do not prune nodes that cannot beat the best path")
 
 
-def _smoother_args(p: argparse.ArgumentParser, max_iter: int | None = 50, method: bool = True,
+def _smoother_args(p: argparse.ArgumentParser, max_iter: int | None = None, method: bool = True,
                    path: bool = False) -> None:
     if path:
         p.add_argument("--path", type=Path, metavar="FILE",
@@ -151,17 +151,18 @@ def _smoother_args(p: argparse.ArgumentParser, max_iter: int | None = 50, method
     g = p.add_argument_group("smoother")
     if method:
         g.add_argument("--method", choices=smoothing_methods(), default=PAPER_METHOD,
-                       help="ccp: convex-concave procedure (the paper's); ipopt: the same model by IPOPT")
+                       help="a registered smoothing method (belief-nlp methods lists them); ccp: the "
+                            "convex-concave procedure (the paper's); ipopt: the same model by IPOPT")
     g.add_argument("--horizon", "-K", dest="horizon", type=_positive_int, default=None, metavar="K",
                    help="time steps of the smoothed path, at least the path's edge count (edges are cut into "
                         "equal steps); default: the scenario's [horizon] K if the path fits, else one step "
                         "per edge")
-    g.add_argument("--solver", default="CLARABEL",
-                   help="conic solver of the CCP subproblems (CLARABEL, or another CVXPY solver such as SCS)")
+    g.add_argument("--solver", default=None,
+                   help="the method's solver; CCP: any installed CVXPY solver with PSD and exponential cones "
+                        "(default CLARABEL, e.g. SCS); IPOPT: IPOPT")
     g.add_argument("--max-iter", type=_positive_int, default=max_iter,
                    help="iteration limit of the smoother" + (
-                       " (default: 100 for CCP, 3000 for IPOPT, whose iterations are Newton steps)"
-                       if max_iter is None else ""))
+                       " (default: each method's own, see belief-nlp methods)" if max_iter is None else ""))
     g.add_argument("--tol", type=_positive_float, default=1e-4,
                    help="stop when an iteration lowers the cost by less than this fraction")
 

@@ -69,12 +69,12 @@ def _cmd_smooth(run: _Run) -> int:
 
 
 def _smooth(run: _Run, sc, path, method: str, *, keep_iterates: bool = False, label: str = ""):
-    from ..smoothing import smooth
+    from ..smoother import get_method, smooth
 
     a = run.args
     K, why = _horizon(a.horizon, sc, path)
     log.info("%ssmoothing with %s: K = %d (%s), at most %d iterations", label, method.upper(), K, why,
-             a.max_iter)
+             a.max_iter or get_method(method).max_iter)
     t0 = time.perf_counter()
     try:
         res = smooth(sc, path, method=method, K=K, max_iter=a.max_iter, tol=a.tol, solver=a.solver,
