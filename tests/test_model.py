@@ -195,3 +195,42 @@ def test_nlp_rows_are_the_model_margins_at_random_points(start, formulation):
         ctrl, info, _ = (float(v) for v in nlp.parts(zv, nlp.anchor(q)))
         total, c_ref, i_ref = model.cost(q)
         assert ctrl == pytest.approx(c_ref, rel=1e-9) and info == pytest.approx(i_ref, rel=1e-7)
+
+
+def test_exported_mpc_functions_equal_the_model_at_random_points(start):
+    """export.py (SI units, covariance form) and the model (scaled units,
+    information form) evaluate the same terms: their margins agree after the
+    change of units (x' = x / sigma, P' = P / sigma^2, lam' = sigma lam)."""
+    from belief_nlp import export
+
+    sc, ws, model, z = start
+    D = model.data
+    s = D.sigma
+    fns = export.export_functions(sc)
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        j = int(rng.integers(D.J))
+        h = sc.hazards[j]
+        x0, x1 = rng.uniform(0, 1, 2), rng.uniform(0, 1, 2)
+        G = rng.normal(size=(2, 2))
+        P = 1e-3 * (G @ G.T) + 1e-6 * np.eye(2)
+        lam = np.abs(rng.normal(size=h.n_faces)) * 30
+        m0, m1 = (float(v) for v in fns[f"transition_{export._slug(h.name)}"](x0, P, x1, sc.W, lam))
+        lam_s = np.zeros(D.F)
+        lam_s[: h.n_faces] = lam * s
+        ref0 = float(model.f_margin_cov(x0 / s, P / s**2, lam_s, D.A[j], D.b[j]))
+        ref1 = float(model.f_margin_inv(x1 / s, np.linalg.inv((P + sc.W) / s**2), lam_s, D.A[j], D.b[j]))
+        assert m0 == pytest.approx(ref0, rel=1e-9, abs=1e-9) and m1 == pytest.approx(ref1, rel=1e-7, abs=1e-7)
+        # information cost and update: the model's information(Y, Q) with Q = P_hat^-1
+        S = 1e3 * np.abs(rng.normal()) * np.eye(2)
+        Ph = P + sc.W
+        nats = float(fns["information_cost"](Ph, S))
+        _, info = model.f_step(x0, x0, np.linalg.inv(Ph) * s**2 + S * s**2, np.linalg.inv(Ph) * s**2)
+        assert nats == pytest.approx(float(info), rel=1e-9)
+    # target containment (metres) against the model's margin (scaled length)
+    x = np.array([0.65, 0.05])
+    P = 1e-5 * np.eye(2)
+    got = np.asarray(fns["target_containment"](x, P)).ravel()
+    ref = np.array([float(model.f_target(x / s, np.linalg.inv(P / s**2), D.At[n], D.bt[n]))
+                    for n in range(D.At.shape[0])]) * s
+    np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12)

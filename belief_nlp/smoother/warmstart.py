@@ -37,12 +37,15 @@ names the transition and the obstacle.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
+import casadi as ca
 import numpy as np
 
 from .. import belief
 from ..errors import InfeasibleStartError, ValidationError
 from ..geometry import PolytopeSet, containment_margin, transition_minimiser
+from ..model import terms
 from ..path import BeliefPath
 from ..scenario import Scenario
 from ..verify import VerificationReport, verify
@@ -204,6 +207,31 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
     return WarmStart(ws_path, lam, report, halvings)
 
 
+@lru_cache(maxsize=16)
+def _margin_parts(F: int, d: int):
+    """(x, P, lam, A, b) -> (quad(A^T lam, P), bilinear(lam, x, A, b)), mapped over
+    pairs when called on stacked columns (terms of :mod:`belief_nlp.model.terms`)."""
+    x, P, lam = ca.SX.sym("x", d), ca.SX.sym("P", d, d), ca.SX.sym("lam", F)
+    A, b = ca.SX.sym("A", F, d), ca.SX.sym("b", F)
+    f = ca.Function("margin_parts", [x, P, lam, A, b], [terms.quad(ca.mtimes(A.T, lam), P),
+                                                         terms.bilinear(lam, x, A, b)])
+    return _Mapped(f)
+
+
+class _Mapped:
+    """Calls ``f`` mapped over as many pairs as the inputs hold (cached per count)."""
+
+    def __init__(self, f):
+        self.f = f
+        self.maps: dict = {}
+
+    def __call__(self, x, *rest):
+        n = x.shape[1]
+        if n not in self.maps:
+            self.maps[n] = self.f.map(n)
+        return self.maps[n](x, *rest)
+
+
 def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | None = None,
                  margin: float = _START_MARGIN) -> np.ndarray:
     """Theorem-1 certificates (K, J, F), SI units, for every transition of a path.
@@ -226,12 +254,17 @@ def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | No
     lam = tm.lam                                                # (K, J, F)
     chi2 = scenario.chi2
     target = chi2 + np.maximum(chi2 * margin, np.minimum(chi2, 0.5 * (tm.dist2 - chi2)))
-    v = np.einsum("jfd,kjf->kjd", hazards.A, lam)
-    t_min = np.zeros(lam.shape[:2])
+    # the two parts of the Lemma-1 margin at each end, from the model's terms:
+    # margin(t lam) = -t^2 quad(A^T lam, P) + t bilinear(lam, x) - chi2
+    K, J, F = lam.shape
+    A = np.tile(hazards.A, (K, 1, 1))
+    t_min = np.zeros((K, J))
     for xe, Pe in ((x0, P0), (x1, P1)):
-        # f(t) = -t^2 a + 2 t beta with a = v^T P v, beta = lam^T (A x - b)
-        a = np.einsum("kjd,kde,kje->kj", v, Pe, v)
-        beta = np.einsum("kjf,kjf->kj", lam, np.einsum("jfd,kd->kjf", hazards.A, xe) - hazards.b[None])
+        Ps = np.concatenate(list(np.repeat(Pe, J, axis=0)), axis=1)
+        a, h = _margin_parts(F, xe.shape[1])(np.repeat(xe, J, axis=0).T, Ps, lam.reshape(K * J, F).T,
+                                             np.concatenate(list(A), axis=1), np.tile(hazards.b, (K, 1)).T)
+        a = a.full().reshape(K, J)
+        beta = 0.5 * h.full().reshape(K, J)
         with np.errstate(divide="ignore", invalid="ignore"):
             disc = beta**2 - a * target
             t_lo = np.where(a > 0, (beta - np.sqrt(np.maximum(disc, 0.0))) / a, target / (2 * beta))
