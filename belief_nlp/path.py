@@ -76,6 +76,18 @@ def _means(x: Any) -> np.ndarray:
     return x
 
 
+def _alpha(alpha: Any) -> float:
+    """A finite, non-negative information weight (a NaN weight would make every cost NaN)."""
+    try:
+        a = float(alpha) if isinstance(alpha, (int, float, np.integer, np.floating)) and \
+            not isinstance(alpha, (bool, np.bool_)) else math.nan
+    except OverflowError:
+        a = math.nan
+    if not (math.isfinite(a) and a >= 0):
+        raise ValidationError("alpha", f"must be a finite number >= 0, got {alpha!r:.40}")
+    return a
+
+
 def _meta(meta: Any) -> dict:
     if meta is None:
         return {}
@@ -272,11 +284,11 @@ class BeliefPath:
 
     def steering_cost(self, alpha: float) -> float:
         """The smoothing paper's objective: control_cost + alpha * information."""
-        return self.control_cost + alpha * self.information
+        return self.control_cost + _alpha(alpha) * self.information
 
     def planner_cost(self, alpha: float) -> float:
         """The planner's cost: length + alpha * information (nats)."""
-        return self.length + alpha * self.information
+        return self.length + _alpha(alpha) * self.information
 
     @property
     def step_information(self) -> np.ndarray:
@@ -301,6 +313,7 @@ class BeliefPath:
         ``information_nats`` (the planner's); ``information_bits`` is the
         same information in bits, as the authors' IG-RRT* reports it.
         """
+        alpha = _alpha(alpha)
         info = self.information
         return {
             "alpha": float(alpha),

@@ -101,6 +101,8 @@ def test_non_finite_data_is_rejected_naming_the_field(paper, straight):
     assert field_of(lambda: paper.with_options(alpha=float("inf"))) == "alpha"
     assert field_of(lambda: Polytope([[1.0, 0.0]], [np.nan])) == "polytope.b"
     assert field_of(lambda: paper.target.contains([np.nan, 0.0])) == "y"
+    for cost in (straight.steering_cost, straight.planner_cost, straight.cost_breakdown):
+        assert field_of(lambda: cost(float("nan"))) == "alpha"
 
 
 # -------------------------------------------------------------------- verify
@@ -178,6 +180,7 @@ def test_plan_results_reload_equal(tmp_path, planned):
             back = bn.PlanResult.load(res.save(tmp_path / f"r{suffix}"))
             assert back == res and not back != res
     assert dataclasses.replace(planned, seed=99) != planned
+    assert field_of(lambda: planned.cost_in_authors_units(float("inf"))) == "alpha"
     assert planned != "a result"
 
 

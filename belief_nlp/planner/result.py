@@ -16,7 +16,7 @@ import numpy as np
 from .._limits import check_npz, load_json, parse_document
 from ..belief import NATS_PER_BIT
 from ..errors import ScenarioFileError, ValidationError
-from ..path import BeliefPath, _values_equal
+from ..path import BeliefPath, _alpha, _values_equal
 
 __all__ = ["PlanResult", "TreeView"]
 
@@ -198,14 +198,14 @@ class PlanResult:
         bits", the bits being those of the log-determinant). For the other
         metrics the units agree already. ``alpha`` defaults to this run's.
         """
-        a = self.alpha if alpha is None else float(alpha)
+        a = self.alpha if alpha is None else _alpha(alpha)
         if self.metric != "entropy":
             return self.travel + a * self.information
         return self.travel + a * self.information_nats / NATS_PER_BIT
 
     def cost_in_nats(self, alpha: float | None = None) -> float:
         """length + alpha * information_nats (entropy metric)."""
-        a = self.alpha if alpha is None else float(alpha)
+        a = self.alpha if alpha is None else _alpha(alpha)
         return self.travel + a * self.information_nats
 
     # ----------------------------------------------------------- display
