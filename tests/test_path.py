@@ -142,8 +142,11 @@ def test_equality():
     p = _path(K=3)
     q = BeliefPath.from_dict(p.to_dict())
     assert p == q
-    q.x[1, 0] += 1e-12
-    assert p != q
+    with pytest.raises(ValueError):          # validated arrays are read-only
+        q.x[1, 0] += 1e-12
+    x = q.x.copy()
+    x[1, 0] += 1e-12
+    assert p != BeliefPath(x, q.P, q.P_prior, q.S)
     assert p != "path"
 
 

@@ -222,3 +222,16 @@ def test_casadi_linearisation_matches_the_analytic_gradients():
     lt, xt, lam, x = rng.random(F), rng.normal(size=d), rng.random(F), rng.normal(size=d)
     ref = 2 * lam @ (A @ xt - b) + 2 * (A.T @ lt) @ (x - xt)
     assert float(g(lt, xt, lam, x, A, b)) == pytest.approx(ref, rel=1e-12)
+
+
+def test_result_files_fail_with_our_errors(tmp_path):
+    f = tmp_path / "r.json"
+    for content, field in (("{", "filename"), ("[1, 2]", "result"), ("[" * 10000 + "]" * 10000, "filename"),
+                           ('{"path": {"x": 1}, "history": []}', None)):
+        f.write_text(content)
+        with pytest.raises(ValidationError) as exc:
+            bn.SmoothResult.load(f)
+        assert field is None or exc.value.field == field
+    with pytest.raises(ValidationError) as exc:
+        bn.SmoothResult.load(tmp_path / "missing.json")
+    assert exc.value.field == "filename"

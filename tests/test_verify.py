@@ -218,9 +218,10 @@ def test_bad_arguments():
     with pytest.raises(ValidationError) as info:
         bn.verify(sc2, path3)
     assert info.value.field == "path.x" and "3-D" in str(info.value) and "2-D" in str(info.value)
-    with pytest.raises(ValidationError) as info:
+    with pytest.raises(ValidationError) as info:         # a name is loaded, then checked like a Scenario
         bn.verify("paper-multi", path3)
-    assert info.value.field == "scenario"
+    assert info.value.field in ("path.x", "scenario") and "3-D" in str(info.value)
+    assert bn.verify("cube3d", path3).safe == bn.verify(sc3, path3).safe
     with pytest.raises(ValidationError) as info:
         bn.verify(sc3, path3, n_samples=1)
     assert info.value.field == "n_samples"

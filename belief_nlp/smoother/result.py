@@ -9,7 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ValidationError
+from .._limits import load_json
+from ..errors import ScenarioFileError, ValidationError
 from ..path import BeliefPath
 
 __all__ = ["IterationRecord", "SmoothResult", "STATUSES"]
@@ -131,15 +132,26 @@ class SmoothResult:
         filename = Path(filename)
         if filename.suffix != ".json":
             raise ValidationError("filename", f"smoothing results are saved as .json, got {filename.suffix!r}")
-        filename.write_text(json.dumps(self.to_dict(), default=float))
+        try:
+            filename.write_text(json.dumps(self.to_dict(), default=float))
+        except OSError as exc:
+            raise ScenarioFileError("filename", f"cannot write {str(filename)[:200]}: {exc.strerror or exc}") from None
         return filename
 
     @classmethod
     def load(cls, filename: str | Path) -> "SmoothResult":
-        data = json.loads(Path(filename).read_text())
-        data["path"] = BeliefPath.from_dict(data["path"])
-        data["history"] = [IterationRecord(**h) for h in data["history"]]
-        return cls(**data)
+        """Read a result written by :meth:`save` (file limits as :meth:`BeliefPath.load`);
+        file faults raise :class:`ScenarioFileError`, bad contents :class:`ValidationError`."""
+        data = load_json(filename, "filename")
+        if not isinstance(data, dict) or not {"path", "history"} <= set(data):
+            raise ValidationError("result", "not a smoothing result (needs 'path' and 'history')")
+        data = dict(data)
+        try:
+            data["path"] = BeliefPath.from_dict(data["path"])
+            data["history"] = [IterationRecord(**h) for h in data["history"]]
+            return cls(**data)
+        except (TypeError, KeyError, AttributeError) as exc:
+            raise ValidationError("result", f"malformed smoothing result: {str(exc)[:200]}") from None
 
     def __eq__(self, other: object) -> bool:
         """Equal content, NaN equal to NaN (results reload equal)."""
