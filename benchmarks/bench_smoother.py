@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 import belief_nlp as bn
-from belief_nlp.methods.ccp import compiled_step
+from belief_nlp.methods.ccp import CHI2_MARGIN, compiled_step
 from belief_nlp.model import BeliefModel
 from belief_nlp.model.cache import MEMORY, DiskCache, problem_key
 
@@ -73,7 +73,7 @@ def compile_times(sc, K: int, alpha: float) -> dict:
     t3 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         disk = DiskCache(tmp)
-        key = problem_key(model.data, 1e-7, "CLARABEL")
+        key = problem_key(model.data, CHI2_MARGIN, "CLARABEL")
         disk.save(key, step)
         size = (Path(tmp) / (key + disk.suffix)).stat().st_size
         t4 = time.perf_counter()

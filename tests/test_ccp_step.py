@@ -12,7 +12,7 @@ import pytest
 
 import belief_nlp as bn
 from belief_nlp.errors import ValidationError
-from belief_nlp.methods.ccp import compiled_step, usable_solvers
+from belief_nlp.methods.ccp import CHI2_MARGIN, compiled_step, usable_solvers
 from belief_nlp.model import BeliefModel
 from belief_nlp.model.cache import MEMORY, DiskCache, problem_key
 
@@ -128,7 +128,7 @@ def test_disk_cache_round_trip_and_refuses_foreign_entries(small, tmp_path):
     assert third.stats["compile"] == "compiled"
     # a pickle written by someone else (not signed with this folder's key) is never loaded
     model = BeliefModel(sc, first.path.K, 0.1)
-    key = problem_key(model.data, 1e-7, "CLARABEL")
+    key = problem_key(model.data, CHI2_MARGIN, "CLARABEL")
     (cache / (key + ".ccp.pkl")).write_bytes(b"\0" * 32 + pickle.dumps({"evil": True}))
     assert DiskCache(cache).load(key) is None
     # a folder writable by others is not used

@@ -29,6 +29,7 @@ from ..model import BeliefModel, Layout
 from ..model.cache import MEMORY, DiskCache, problem_key
 from ..model.cvxpy_form import CompiledProblem, compile_problem
 from ..smoother.context import Outcome, SmoothingProblem
+from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Method, Option, register
 from ..smoother.result import STATUSES, IterationRecord
 
@@ -36,7 +37,7 @@ __all__ = ["run", "compiled_step", "ccp_subproblem", "usable_solvers", "initial_
 
 log = logging.getLogger("belief_nlp.smoother")
 
-CHI2_MARGIN = 1e-7
+CHI2_MARGIN = DEFAULT_POLICY.conic      # every collision/containment row of the step asks chi2 (1 + this)
 
 # Clarabel: equilibration off by default -- on paper-multi (K = 5..20, both
 # alphas) it ended 65 of 174 subproblems InsufficientProgress, 0 of 110

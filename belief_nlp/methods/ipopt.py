@@ -31,6 +31,7 @@ from ..model import Layout
 from ..model.cache import MemoryCache, problem_key
 from ..model.nlp_form import FORMULATIONS, NLPProblem, build_nlp
 from ..smoother.context import Outcome, SmoothingProblem
+from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Method, Option, register
 from ..smoother.result import STATUSES, IterationRecord
 from .ipopt_recorder import Recorder
@@ -145,7 +146,7 @@ def _record_attempt(problem: SmoothingProblem, nlp: NLPProblem, recorder: Record
 
 
 def run(problem: SmoothingProblem, *, formulation: str = "cholesky", regularisation: float = 1e-4,
-        margin: float = 1e-6, restarts: int = 1, stall: int = 300, candidates: int = 5,
+        margin: float = DEFAULT_POLICY.nlp, restarts: int = 1, stall: int = 300, candidates: int = 5,
         cache: bool = True) -> Outcome:
     """IPOPT from the problem's start (module doc; options in :data:`METHOD`)."""
     opts = _ipopt_options(problem.solver_options, problem.max_iter, problem.tol)
@@ -233,7 +234,7 @@ METHOD = register(Method(
         "formulation": Option("cholesky", f"NLP variables: one of {FORMULATIONS}",
                               lambda v: None if v in FORMULATIONS else f"must be one of {FORMULATIONS}"),
         "regularisation": Option(1e-4, "weight of the certificates' proximal term", _nonneg),
-        "margin": Option(1e-6, "relative clearance margin kept in the NLP's collision rows", _nonneg),
+        "margin": Option(DEFAULT_POLICY.nlp, "relative clearance margin kept in the NLP's collision rows", _nonneg),
         "restarts": Option(1, "restarts from the best safe point after an unconverged stop", _count),
         "stall": Option(300, "iterations without a lower feasible cost that end an attempt", _count),
         "candidates": Option(5, "feasible iterates kept as fallback candidates", _count),

@@ -245,7 +245,7 @@ class ConvexForm:
     chi2: float
 
 
-def convex_form(D: ProblemData, chi2_margin: float = 1e-7) -> ConvexForm:
+def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
     """Build the convexified DOC program of ``D`` symbolically (see module doc).
 
     chi2_margin : every collision and containment constraint uses

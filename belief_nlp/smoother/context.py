@@ -20,6 +20,7 @@ import numpy as np
 from ..geometry import PolytopeSet, transition_minimiser
 from ..model import BeliefModel, Layout
 from ..scenario import Scenario
+from .policy import DEFAULT_POLICY, SafetyPolicy
 from .result import IterationRecord
 from .warmstart import WarmStart, certificates
 
@@ -28,18 +29,30 @@ __all__ = ["Check", "Outcome", "SmoothingProblem"]
 
 @dataclass
 class Check:
-    """Exact safety of a point: ``margin`` = min over transitions and hazards of
-    the continuous-time squared Mahalanobis clearance minus chi2 (Theorem 1,
-    exact 1-D minimisation), ``target`` = smallest containment margin of the
-    final posterior (scaled length). ``point`` carries repaired certificates."""
+    """Certified safety of a point (docs/safety.md).
+
+    margin : the proof -- min over transitions and hazards of the point's own
+        Theorem-1 certificate values minus chi2 (closed form, both ends; a
+        rigorous lower bound on the continuous-time squared Mahalanobis
+        clearance minus chi2).
+    upper : the exact 1-D minimisation's value minus chi2 (an upper bound,
+        attained at some s); margin <= upper up to rounding.
+    target : smallest containment margin of the final posterior (scaled length).
+    accept : the margin the policy requires (a fraction of chi2, absolute).
+    point : the point, with certificates repaired where its own failed.
+    """
 
     point: Layout
     margin: float
     target: float
+    upper: float = float("nan")
+    accept: float = 0.0
+    target_accept: float = 0.0
 
     @property
     def safe(self) -> bool:
-        return bool(self.margin >= 0 and self.target >= 0)   # NaN is never safe
+        # NaN compares False: never safe
+        return bool(self.margin >= self.accept and self.target >= self.target_accept)
 
 
 @dataclass
@@ -70,7 +83,8 @@ class SmoothingProblem:
 
     def __init__(self, scenario: Scenario, warm: WarmStart, model: BeliefModel, *, max_iter: int, tol: float,
                  time_limit: float | None, t0: float, solver: str | None, solver_options: dict,
-                 progress: bool, keep_iterates: bool, callback: Callable | None, method: str):
+                 progress: bool, keep_iterates: bool, callback: Callable | None, method: str,
+                 policy: SafetyPolicy = DEFAULT_POLICY):
         self.scenario = scenario
         self.warm = warm
         self.model = model
@@ -89,6 +103,7 @@ class SmoothingProblem:
         # (squared Mahalanobis distances are unit-free), no SI round trip per iterate
         s = model.data.sigma
         self.hazards_scaled = PolytopeSet.build([(h.A, h.b / s) for h in scenario.hazards])
+        self.policy = policy
         chk = self.check(model.tighten(model.from_path(warm.path, warm.lam)))
         self.start = chk.point
         self.cost0, ctrl0, info0 = model.cost(self.start)
@@ -110,28 +125,36 @@ class SmoothingProblem:
 
     # ------------------------------------------------------------ safety
     def check(self, z: Layout) -> Check:
-        """Exact safety of ``z`` (see :class:`Check`). Certificates of pairs whose
-        Lemma-1 end conditions fail (solver tolerance) are replaced by the
-        scaled Theorem-1 certificates of the point's own covariances; the
-        others are kept (they are well scaled for the next convex step)."""
+        """Certified safety of ``z`` (see :class:`Check`). The exact
+        minimisation over s gives each pair's optimal certificate; where the
+        point's own certificate does not prove the policy's margin, it is
+        replaced by that one (scaled to stay interior), so the proof is the
+        best available; the others are kept (they are well scaled for the
+        next convex step)."""
         D = self.model.data
+        accept = self.policy.accept * D.chi2
         try:
-            if not (np.all(np.isfinite(z.x)) and np.all(np.isfinite(z.S)) and np.all(np.isfinite(z.Q))):
+            if not (np.all(np.isfinite(z.x)) and np.all(np.isfinite(z.S)) and np.all(np.isfinite(z.Q))
+                    and np.all(np.isfinite(z.lam))):
                 raise ValueError("non-finite point")
             P = self.model.covariances(z)
             W = np.broadcast_to(D.W, P[1:].shape)
             tm = transition_minimiser(z.x[:-1], P[:-1], z.x[1:], W, self.hazards_scaled)
             start, end = self.model.transition_margins(z)
+            out = z
+            bad = ~(np.minimum(start, end) >= accept)
+            if np.any(bad):
+                out = z.copy()
+                lam = certificates(self.scenario, self.model.to_path(z), self.hazards) * D.sigma
+                out.lam = np.where(bad[..., None], lam, z.lam)
+                start, end = self.model.transition_margins(out)
+            lower = float(np.min(np.minimum(start, end)))
+            upper = float(np.min(tm.dist2) - D.chi2)
+            target = float(np.min(self.model.target_margins(out)))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
-            return Check(z, float("nan"), float("nan"))
-        out = z
-        bad = ~((start >= 0) & (end >= 0))
-        if np.any(bad):
-            out = z.copy()
-            lam = certificates(self.scenario, self.model.to_path(z), self.hazards) * D.sigma
-            out.lam = np.where(bad[..., None], lam, z.lam)
-        dist = float(np.min(tm.dist2) - D.chi2) if np.all(np.isfinite(tm.dist2)) else float("nan")
-        return Check(out, dist, float(np.min(self.model.target_margins(out))))
+            return Check(z, float("nan"), float("nan"), accept=accept)
+        return Check(out, lower if np.isfinite(lower) else float("nan"), target, upper, accept,
+                     self.policy.target)
 
     def repair(self, chk: Check) -> Check | None:
         """Restore exact feasibility lost to solver tolerance (violations ~1e-7).
@@ -142,7 +165,7 @@ class SmoothingProblem:
         information cost of about alpha/2 K d eta. Tries eta from 10x the
         deficit up to 1e-3; None when that does not suffice."""
         D = self.model.data
-        deficit = max(-chk.margin / D.chi2, -chk.target, 0.0)
+        deficit = max((chk.accept - chk.margin) / D.chi2, chk.target_accept - chk.target, 0.0)
         if not np.isfinite(deficit):
             return None
         eta = max(10 * deficit, 1e-9)

@@ -46,6 +46,7 @@ from .. import belief
 from ..errors import InfeasibleStartError, ValidationError
 from ..geometry import PolytopeSet, containment_margin, transition_minimiser
 from ..model import terms
+from .policy import DEFAULT_POLICY
 from ..path import BeliefPath
 from ..scenario import Scenario
 from ..verify import VerificationReport, verify
@@ -55,7 +56,7 @@ __all__ = ["WarmStart", "warm_start", "resample_means"]
 # Clearance margin required of the start point, relative to chi2, so that
 # solver rounding in the first subproblem never meets an active constraint
 # exactly (numerics.md: constraints end active at ~1e-7).
-_START_MARGIN = 1e-6
+_START_MARGIN = DEFAULT_POLICY.warm_start
 _MAX_HALVINGS = 60
 
 
