@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numbers
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import nnls
@@ -67,6 +67,12 @@ class VerificationReport:
         scenario's noise model.
     start_residual : relative error of (x_0, P_0) against the scenario's start.
     problems : list of the failed checks, in words.
+    proof : what decided the transitions: "sampling" (dense sampling of s,
+        refined around the worst sample: a second opinion), or
+        "certificates+sampling" when Theorem-1 certificates were given and
+        prove every pair in closed form (then the sampling must agree too).
+    certificate_margins : (K, J) min(f_0(lam), f_1(lam)) - chi2 of the given
+        certificates (a rigorous lower bound on the clearance), or None.
     """
 
     safe: bool
@@ -81,6 +87,8 @@ class VerificationReport:
     start_residual: float
     tol: float
     problems: list[str] = field(default_factory=list)
+    proof: str = "sampling"
+    certificate_margins: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         # Read-only copies, like the path's arrays: a report cannot be edited
@@ -114,6 +122,9 @@ class VerificationReport:
             "problems": list(self.problems),
             "max_kalman_residual": float(np.max(self.kalman_residual, initial=0.0)),
             "min_target_margin_m": float(np.min(self.target_margins_m, initial=np.inf)),
+            "proof": self.proof,
+            "min_certificate_margin": (None if self.certificate_margins is None
+                                       else float(np.min(self.certificate_margins, initial=np.inf))),
         }
 
 
@@ -221,6 +232,46 @@ def _psd_part(P: np.ndarray, rtol: float = 1e-9) -> tuple[np.ndarray, np.ndarray
     return fixed, asym | neg
 
 
+# ------------------------------------------------------------ certificates
+def _certificate_margins(scenario: Scenario, path: BeliefPath, lam: np.ndarray) -> np.ndarray:
+    """min(f_0(lam), f_1(lam)) - chi2 per transition and hazard, closed form:
+    f_s(lam) = -v^T P(s) v + 2 lam^T (A x(s) - b), v = A^T lam, at s = 0 (P_{k-1})
+    and s = 1 (P_{k-1} + W_k). For lam >= 0 a lower bound on min_s dist2 (Theorem 1)."""
+    K = path.K
+    out = np.empty((K, len(scenario.hazards)))
+    P0 = path.P[:-1]
+    P1 = P0 + path.transition_noise
+    for j, h in enumerate(scenario.hazards):
+        lj = lam[:, j, : h.n_faces]                                   # (K, f)
+        v = lj @ h.A                                                  # (K, d)
+        f0 = -np.einsum("kd,kde,ke->k", v, P0, v) + 2 * np.einsum("kf,kf->k", lj, path.x[:-1] @ h.A.T - h.b)
+        f1 = -np.einsum("kd,kde,ke->k", v, P1, v) + 2 * np.einsum("kf,kf->k", lj, path.x[1:] @ h.A.T - h.b)
+        out[:, j] = np.minimum(f0, f1) - scenario.chi2
+    return out
+
+
+def _with_certificates(report: VerificationReport, scenario: Scenario, path: BeliefPath,
+                       certificates) -> VerificationReport:
+    """The report with the closed-form certificate check added."""
+    lam = np.asarray(certificates, dtype=float)
+    F = max(h.n_faces for h in scenario.hazards)
+    if lam.ndim != 3 or lam.shape[:2] != (path.K, len(scenario.hazards)) or lam.shape[2] < F:
+        raise ValidationError("certificates", f"must be (K, J, F) = ({path.K}, {len(scenario.hazards)}, >= {F}), "
+                                              f"got {lam.shape}")
+    problems = list(report.problems)
+    if not np.all(np.isfinite(lam)) or np.any(lam < 0):
+        problems.append("certificates must be finite and >= 0 (Theorem 1 holds only for lam >= 0)")
+        cm = np.full((path.K, len(scenario.hazards)), np.nan)
+    else:
+        cm = _certificate_margins(scenario, path, lam)
+        for k, j in np.argwhere(~(cm >= 0))[:20]:
+            problems.append(f"transition {k + 1} vs {report.hazard_names[j]}: the certificate does not prove "
+                            f"clearance (margin {cm[k, j]:.3g})")
+    proven = not any("certificate" in p for p in problems)
+    return replace(report, safe=not problems, problems=problems, certificate_margins=cm,
+                   proof="certificates+sampling" if proven else "sampling")
+
+
 # ------------------------------------------------------------------ verify
 def _as_scenario(scenario: object) -> tuple[Scenario, bool]:
     """(scenario, given by name?) from a Scenario, a built-in name or a scenario file."""
@@ -274,9 +325,49 @@ def _unmeasured_report(path: BeliefPath, names: list[str], tol: float, problems:
         noise_residual=nan, start_residual=np.nan, tol=tol, problems=problems)
 
 
+# ------------------------------------------------------------ certificates
+def _certificate_margins(scenario: Scenario, path: BeliefPath, lam: np.ndarray) -> np.ndarray:
+    """min(f_0(lam), f_1(lam)) - chi2 per transition and hazard, closed form:
+    f_s(lam) = -v^T P(s) v + 2 lam^T (A x(s) - b), v = A^T lam, at s = 0 (P_{k-1})
+    and s = 1 (P_{k-1} + W_k). For lam >= 0 a lower bound on min_s dist2 (Theorem 1)."""
+    K = path.K
+    out = np.empty((K, len(scenario.hazards)))
+    P0 = path.P[:-1]
+    P1 = P0 + path.transition_noise
+    for j, h in enumerate(scenario.hazards):
+        lj = lam[:, j, : h.n_faces]                                   # (K, f)
+        v = lj @ h.A                                                  # (K, d)
+        f0 = -np.einsum("kd,kde,ke->k", v, P0, v) + 2 * np.einsum("kf,kf->k", lj, path.x[:-1] @ h.A.T - h.b)
+        f1 = -np.einsum("kd,kde,ke->k", v, P1, v) + 2 * np.einsum("kf,kf->k", lj, path.x[1:] @ h.A.T - h.b)
+        out[:, j] = np.minimum(f0, f1) - scenario.chi2
+    return out
+
+
+def _with_certificates(report: VerificationReport, scenario: Scenario, path: BeliefPath,
+                       certificates) -> VerificationReport:
+    """The report with the closed-form certificate check added."""
+    lam = np.asarray(certificates, dtype=float)
+    F = max(h.n_faces for h in scenario.hazards)
+    if lam.ndim != 3 or lam.shape[:2] != (path.K, len(scenario.hazards)) or lam.shape[2] < F:
+        raise ValidationError("certificates", f"must be (K, J, F) = ({path.K}, {len(scenario.hazards)}, >= {F}), "
+                                              f"got {lam.shape}")
+    problems = list(report.problems)
+    if not np.all(np.isfinite(lam)) or np.any(lam < 0):
+        problems.append("certificates must be finite and >= 0 (Theorem 1 holds only for lam >= 0)")
+        cm = np.full((path.K, len(scenario.hazards)), np.nan)
+    else:
+        cm = _certificate_margins(scenario, path, lam)
+        for k, j in np.argwhere(~(cm >= 0))[:20]:
+            problems.append(f"transition {k + 1} vs {report.hazard_names[j]}: the certificate does not prove "
+                            f"clearance (margin {cm[k, j]:.3g})")
+    proven = not any("certificate" in p for p in problems)
+    return replace(report, safe=not problems, problems=problems, certificate_margins=cm,
+                   proof="certificates+sampling" if proven else "sampling")
+
+
 # ------------------------------------------------------------------ verify
 def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_samples: int = 101,
-           n_refine: int = 41, tol: float = 1e-6) -> VerificationReport:
+           n_refine: int = 41, tol: float = 1e-6, certificates: np.ndarray | None = None) -> VerificationReport:
     """Check a belief path for safety and consistency, independently of the solvers.
 
     Parameters
@@ -290,12 +381,20 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
         sample, same range.
     tol : margins >= -tol * chi2 count as clear; 0 <= tol < 1. Relative
         residuals of the Kalman recursion and of the noise model must be <= 1e-6.
+    certificates : optional Theorem-1 certificates (K, J, F) in 1/m, hazards
+        in ``scenario.hazards`` order, faces padded with zeros (as
+        ``SmoothResult.certificates``; taken from ``path`` when it is a
+        result that carries them). Each must be >= 0 and prove its pair in
+        closed form, min(f_0, f_1) >= chi2 (docs/safety.md); otherwise the
+        path is not called safe.
 
     A margin that cannot be computed (NaN) is a failure, never a pass; a path
     with non-finite entries is reported unsafe. Bad arguments raise
     :class:`~belief_nlp.errors.ValidationError` naming the argument.
     """
     scenario, by_name = _as_scenario(scenario)
+    if certificates is None:
+        certificates = getattr(path, "certificates", None)
     path = _as_path(path)
     n_samples = _sample_count("n_samples", n_samples)
     n_refine = _sample_count("n_refine", n_refine)
@@ -314,7 +413,8 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
         return _unmeasured_report(path, names, tol, unmeasurable)
     with np.errstate(all="ignore"):  # overflow gives NaN margins, which _measure reports
         try:
-            return _measure(scenario, path, hazards, names, n_samples, n_refine, tol)
+            report = _measure(scenario, path, hazards, names, n_samples, n_refine, tol)
+            return report if certificates is None else _with_certificates(report, scenario, path, certificates)
         except np.linalg.LinAlgError as exc:  # an eigen-solver gave up: nothing is proven
             return _unmeasured_report(path, names, tol, [f"numerical failure while measuring the path: {exc}"])
 

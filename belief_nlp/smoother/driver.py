@@ -181,7 +181,7 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
             continue
         if cost > problem.cost0 * (1 + 1e-12) + 1e-15:
             break
-        if verify(sc, model.to_path(z)).safe:
+        if verify(sc, model.to_path(z), certificates=z.lam / model.data.sigma).safe:
             answer, origin, answer_cost = z, where, cost
             break
         log.warning("%s failed independent verification; trying the next candidate", where)
@@ -191,7 +191,8 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
     solver = outcome.solver or problem.solver or ""
     meta = {"method": m.name, "solver": solver, "alpha": model.data.alpha}
     path = model.to_path(answer, meta=meta)
-    report = verify(sc, path)
+    lam_si = answer.lam / model.data.sigma
+    report = verify(sc, path, certificates=lam_si)
     c, ctrl, info = model.cost(answer)
     iterates = None
     if problem.keep_iterates:
@@ -203,4 +204,5 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
         message=message, nit=nit, history=hist, method=m.name, solver=solver, alpha=model.data.alpha,
         timings={"setup": t_setup, "solver": float(sum(h.solve_time for h in hist)),
                  "total": time.perf_counter() - problem.t0},
-        verification=report.to_dict(), initial_cost=problem.cost0, iterates=iterates, stats=dict(outcome.stats))
+        verification=report.to_dict(), initial_cost=problem.cost0, iterates=iterates, stats=dict(outcome.stats),
+        certificates=lam_si)

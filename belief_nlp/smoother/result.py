@@ -89,6 +89,9 @@ class SmoothResult:
     iterates : with ``keep_iterates``, the path of every accepted iterate
         (the warm start first).
     stats : the solver's raw statistics (return status, iterations, times).
+    certificates : (K, J, F) Theorem-1 certificates of the returned path in
+        1/m (hazards as ``scenario.hazards``, faces padded with 0): the proof
+        :func:`belief_nlp.verify` checks in closed form (docs/safety.md).
     """
 
     path: BeliefPath
@@ -108,6 +111,7 @@ class SmoothResult:
     initial_cost: float = float("nan")
     iterates: list[BeliefPath] | None = field(default=None, repr=False)
     stats: dict = field(default_factory=dict)
+    certificates: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def x(self) -> np.ndarray:
@@ -122,7 +126,8 @@ class SmoothResult:
         return bool(self.verification.get("safe", False))
 
     def to_dict(self) -> dict:
-        out = {k: v for k, v in asdict(self).items() if k not in ("path", "history", "iterates")}
+        out = {k: v for k, v in asdict(self).items() if k not in ("path", "history", "iterates", "certificates")}
+        out["certificates"] = None if self.certificates is None else np.asarray(self.certificates).tolist()
         out["path"] = self.path.to_dict()
         out["history"] = [asdict(h) for h in self.history]
         return out
@@ -149,6 +154,8 @@ class SmoothResult:
         try:
             data["path"] = BeliefPath.from_dict(data["path"])
             data["history"] = [IterationRecord(**h) for h in data["history"]]
+            if data.get("certificates") is not None:
+                data["certificates"] = np.asarray(data["certificates"], dtype=float)
             return cls(**data)
         except (TypeError, KeyError, AttributeError) as exc:
             raise ValidationError("result", f"malformed smoothing result: {str(exc)[:200]}") from None
