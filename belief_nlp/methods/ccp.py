@@ -51,6 +51,7 @@ CHI2_MARGIN = DEFAULT_POLICY.conic      # every collision/containment row of the
 SOLVER_DEFAULTS = {"CLARABEL": {"equilibrate_enable": False, "chordal_decomposition_enable": False,
                                 "presolve_enable": False}}
 REUSE = {"CLARABEL"}
+TIME_LIMIT_OPTION = {"CLARABEL": "time_limit", "SCS": "time_limit_secs"}
 SOLVER_RETRY = {"CLARABEL": {"equilibrate_enable": True, "max_iter": 400, "static_regularization_constant": 1e-7},
                 "SCS": {"max_iters": 50_000}}
 
@@ -140,12 +141,15 @@ def _adapt_rho(model: BeliefModel, z: Layout, z_new: Layout, rho_s: np.ndarray, 
     return out
 
 
-def _solve(step: CompiledProblem, solver: str, options: dict, retry: bool) -> tuple[str, np.ndarray | None, float, int]:
+def _solve(step: CompiledProblem, solver: str, options: dict, retry: bool,
+           time_left: float | None = None) -> tuple[str, np.ndarray | None, float, int]:
     import cvxpy as cp
 
     opts = dict(SOLVER_DEFAULTS.get(solver, {}))
     if retry:
         opts.update(SOLVER_RETRY[solver])
+    if time_left is not None and solver in TIME_LIMIT_OPTION:     # the run's budget bounds one solve too
+        opts[TIME_LIMIT_OPTION[solver]] = max(float(time_left), 1e-3)
     opts.update(options)
     try:
         with warnings.catch_warnings():       # "may be inaccurate": the status says so, and the exact check decides
@@ -155,12 +159,20 @@ def _solve(step: CompiledProblem, solver: str, options: dict, retry: bool) -> tu
         return f"error: {str(exc).splitlines()[0][:120]}", None, 0.0, 0
     st = step.problem.solver_stats
     status = str(step.problem.status)
-    zv = step.z.value
-    ok = status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) and zv is not None
-    zv = np.asarray(zv, float) if ok else None
-    if zv is not None and (zv.shape != (step.layout.blocks.n,) or not np.all(np.isfinite(zv))):
-        status, zv = f"{status} (non-finite answer)", None
-    return status, zv, float(st.solve_time or 0.0), int(st.num_iters or 0)
+    ok = status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) and step.z.value is not None
+    return _checked(status, np.asarray(step.z.value, float) if ok else None, float(st.solve_time or 0.0),
+                    int(st.num_iters or 0), step)
+
+
+def _checked(status: str, zv: np.ndarray | None, t: float, n: int, step: CompiledProblem):
+    """A solver answer that is not a finite vector of the right length, or whose
+    entries are absurd (|z| > 1e12 in the model's O(1) units), is a failed
+    subproblem, whatever status the solver reported."""
+    if zv is not None:
+        zv = np.asarray(zv, dtype=float)
+        if zv.shape != (step.layout.blocks.n,) or not np.all(np.isfinite(zv)) or np.max(np.abs(zv)) > 1e12:
+            return f"{status} (unusable answer)", None, t, n
+    return status, zv, t, n
 
 
 def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | None = None,
@@ -170,6 +182,8 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     model, D = problem.model, problem.model.data
     solver = (problem.solver or "CLARABEL").upper()
     _check_solver_options(solver, problem.solver_options)
+    if problem.out_of_time():                      # the warm start used the budget up
+        return Outcome("time_limit", f"{STATUSES['time_limit']} (before the first step)", None, solver)
     t_build = time.perf_counter()
     step, origin, disk = compiled_step(model, solver, cache_dir)
     if constraints is not None:
@@ -194,19 +208,19 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
                 step.set_point(z, rho_s, rho_e)
         z_new, kgap, sstat, stime, sit = None, float("nan"), "", 0.0, 0
         for retry in (False, True):
-            if retry and solver not in SOLVER_RETRY:
+            if retry and (solver not in SOLVER_RETRY or problem.out_of_time()):
                 break
             if _fail_at is not None and it >= _fail_at:       # injected fault (tests)
                 sstat, zv, st, n = "injected failure", None, 0.0, 0
             else:
-                sstat, zv, st, n = _solve(step, solver, problem.solver_options, retry)
+                sstat, zv, st, n = _solve(step, solver, problem.solver_options, retry, problem.time_left())
             stime, sit = stime + st, sit + n
             if zv is not None:
                 try:
                     z_raw = step.layout.extract(zv, z)
                     kgap = model.kalman_relative_gap(z_raw)
                     z_new = model.tighten(z_raw)
-                except np.linalg.LinAlgError:   # a degenerate answer is a failed subproblem
+                except (np.linalg.LinAlgError, ValueError, FloatingPointError):  # degenerate: a failed step
                     sstat, z_new = f"{sstat} (degenerate answer)", None
             if z_new is not None:
                 break
@@ -217,7 +231,11 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         if z_new is None:
             problem.record(IterationRecord(it, np.nan, np.nan, np.nan, sstat, stime, 0.0,
                                            time.perf_counter() - t_it, sit, accepted=False))
-            status, message = "solver_failed", f"{STATUSES['solver_failed']}: solver status {sstat} at iteration {it}"
+            if problem.out_of_time():            # the solve was cut by the run's time limit
+                status, message = "time_limit", f"{STATUSES['time_limit']} (during iteration {it})"
+            else:
+                status, message = ("solver_failed",
+                                   f"{STATUSES['solver_failed']}: solver status {sstat} at iteration {it}")
             break
         chk = problem.check(z_new)
         if not chk.safe:

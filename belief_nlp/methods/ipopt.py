@@ -74,9 +74,12 @@ def clear_cache() -> None:
     _CACHE.clear()
 
 
-def _ipopt_options(solver_options: dict, max_iter: int, tol: float) -> dict:
+def _ipopt_options(solver_options: dict, tol: float) -> dict:
+    # IPOPT's own max_iter stays out of the options (and so out of the cache
+    # key): the recorder enforces the run's iteration budget, one solver
+    # instance serves every budget; a user's "max_iter" option still applies
     opts = dict(DEFAULT_IPOPT_OPTIONS)
-    opts["max_iter"] = int(max_iter)
+    opts["max_iter"] = 10**7
     opts["tol"] = float(tol)
     for key, value in solver_options.items():
         opts[key[len("ipopt."):] if key.startswith("ipopt.") else key] = value
@@ -149,8 +152,10 @@ def run(problem: SmoothingProblem, *, formulation: str = "cholesky", regularisat
         margin: float = DEFAULT_POLICY.nlp, restarts: int = 1, stall: int = 300, candidates: int = 5,
         cache: bool = True) -> Outcome:
     """IPOPT from the problem's start (module doc; options in :data:`METHOD`)."""
-    opts = _ipopt_options(problem.solver_options, problem.max_iter, problem.tol)
-    max_iter = int(opts["max_iter"])
+    opts = _ipopt_options(problem.solver_options, problem.tol)
+    max_iter = min(int(opts["max_iter"]), problem.max_iter)
+    if problem.out_of_time():                      # the warm start used the budget up
+        return Outcome("time_limit", f"{STATUSES['time_limit']} (before IPOPT started)", None, "IPOPT")
     t_build = time.perf_counter()
     nlp, solver, recorder, origin = _solver(problem, opts, formulation, margin, regularisation,
                                             max(int(candidates), 0), cache)

@@ -137,6 +137,9 @@ class SmoothingProblem:
             if not (np.all(np.isfinite(z.x)) and np.all(np.isfinite(z.S)) and np.all(np.isfinite(z.Q))
                     and np.all(np.isfinite(z.lam))):
                 raise ValueError("non-finite point")
+            if np.any(z.lam < 0):      # interior-point iterates sit ~1e-8 outside lam >= 0; a proof needs lam >= 0
+                z = z.copy()
+                z.lam = np.maximum(z.lam, 0.0)
             P = self.model.covariances(z)
             W = np.broadcast_to(D.W, P[1:].shape)
             tm = transition_minimiser(z.x[:-1], P[:-1], z.x[1:], W, self.hazards_scaled)

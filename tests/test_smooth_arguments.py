@@ -1,0 +1,84 @@
+"""smooth() rejects bad arguments up front with our error naming the argument,
+and degrades honestly when its solver answers nonsense (issue: hardening)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+import belief_nlp as bn
+import belief_nlp.methods.ccp as ccp_method
+from belief_nlp.errors import ValidationError
+
+from conftest import paper_multi_path_pair
+
+
+@pytest.fixture(scope="module")
+def small():
+    return paper_multi_path_pair(steps_per_segment=1)        # K = 5
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    ({"alpha": float("nan")}, "alpha"), ({"alpha": float("inf")}, "alpha"), ({"alpha": -1.0}, "alpha"),
+    ({"time_limit": float("nan")}, "time_limit"), ({"time_limit": 0}, "time_limit"),
+    ({"tol": float("nan")}, "tol"), ({"tol": 2.0}, "tol"),
+    ({"max_iter": 0}, "max_iter"), ({"max_iter": 2.5}, "max_iter"), ({"max_iter": True}, "max_iter"),
+    ({"K": 10**9}, "K"), ({"K": "20"}, "K"),
+    ({"solver": "FOO"}, "solver"), ({"solver": 3}, "solver"),
+    ({"solver_options": "x"}, "solver_options"), ({"solver_options": {"no_such_setting": 1}}, "solver_options"),
+    ({"monotone_tol": float("nan")}, "monotone_tol"), ({"rho": -1.0}, "rho"),
+    ({"max_ter": 3}, "max_ter"), ({"callback": 3}, "callback"),
+    ({"method": "newton"}, "method"), ({"method": 3}, "method"),
+    ({"formulation": "nope", "method": "ipopt"}, "formulation"),
+])
+def test_bad_arguments_are_named_fast(small, kwargs, field):
+    sc, path = small
+    t0 = time.perf_counter()
+    with pytest.raises(ValidationError) as exc:
+        bn.smooth(sc, path, **kwargs)
+    assert exc.value.field == field
+    assert time.perf_counter() - t0 < 5.0          # rejected before any solver work (generous bound)
+
+
+def test_bad_scenario_and_path_arguments(small):
+    sc, path = small
+    for scenario, field in ((None, "scenario"), (3, "scenario")):
+        with pytest.raises(ValidationError) as exc:
+            bn.smooth(scenario, path)
+        assert exc.value.field == field
+    with pytest.raises(ValidationError) as exc:
+        bn.smooth(sc, "not a path")
+    assert exc.value.field == "path"
+
+
+def test_numpy_integers_are_integers(small):
+    sc, path = small
+    res = bn.smooth(sc, path, max_iter=np.int64(2), K=np.int64(5))
+    assert res.nit <= 2 and res.safe
+
+
+@pytest.mark.parametrize("fault", ["zeros", "huge", "short", "nan"])
+def test_a_nonsense_solver_answer_is_a_failed_subproblem(small, monkeypatch, fault):
+    """A solver that reports success with zeros, 1e300, a wrong-length or a
+    NaN vector: the run ends with a typed status, the answer is verified and
+    never above the warm start."""
+    sc, path = small
+    real = ccp_method._solve
+    calls = []
+
+    def lying(step, solver, options, retry):
+        status, zv, t, n = real(step, solver, options, retry)
+        calls.append(1)
+        if len(calls) < 2 or zv is None:
+            return status, zv, t, n
+        bad = {"zeros": np.zeros_like(zv), "huge": np.full_like(zv, 1e300), "short": zv[:-3],
+               "nan": np.where(np.arange(zv.size) % 7 == 0, np.nan, zv)}[fault]
+        return "optimal", bad, t, n
+
+    monkeypatch.setattr(ccp_method, "_solve", lambda *a: ccp_method._checked(*lying(*a), a[0]))
+    res = bn.smooth(sc, path, alpha=1.0, max_iter=6)
+    assert res.status in ("solver_failed", "infeasible_iterate") and not res.success
+    assert res.safe and res.cost <= res.initial_cost
+    assert bn.verify(sc, res.path, certificates=res.certificates).proof == "certificates+sampling"
