@@ -326,3 +326,20 @@ def test_bad_input_through_the_console_script(tmp_path):
                           timeout=120)
     assert proc.returncode == EXIT_BAD_INPUT
     assert_one_line_error(proc.stderr)
+
+
+def test_an_internal_error_is_one_line_with_a_hint(monkeypatch, capsys):
+    """A bug of ours exits 1 with one line and a hint; -v adds the traceback."""
+    import belief_nlp.cli.scenarios as scen
+
+    def boom(run):
+        raise RuntimeError("something broke\nover two lines")
+
+    monkeypatch.setattr(scen, "_cmd_scenarios", boom)
+    from belief_nlp.cli import main
+
+    assert main(["scenarios"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "internal error" in err and "-v" in err and "Traceback" not in err
+    assert main(["scenarios", "-v"]) == 1
+    assert "Traceback" in capsys.readouterr().err

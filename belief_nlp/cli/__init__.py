@@ -34,17 +34,17 @@ import sys
 from typing import Sequence
 
 from ..errors import BeliefNLPError, ValidationError
-from . import compare, demo, methods, plan, scenarios, smooth
-from .common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, FAILED_STATUSES, PROG, _one_line, _Run,
-                     _setup_logging, smoothing_methods)  # noqa: F401 - smoothing_methods: public
+from . import compare, demo, methods, plan, scenarios, smooth, study
+from .common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, FAILED_STATUSES, PROG, _one_line,
+                     _Run, _setup_logging, smoothing_methods)  # noqa: F401 - smoothing_methods: public
 from .demo import DEMO_MAX_RADIUS  # noqa: F401 - public, as before the split
 from .figures import _headless_matplotlib
 from .parser import _Parser, _UsageError
 
-__all__ = ["main", "build_parser", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_FAILED", "FAILED_STATUSES"]
+__all__ = ["main", "build_parser", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_INTERNAL", "FAILED_STATUSES"]
 
 #: The subcommands, in the order ``belief-nlp --help`` lists them.
-_COMMANDS = (scenarios, plan, smooth, compare, methods, demo)
+_COMMANDS = (scenarios, plan, smooth, compare, methods, demo, study)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -65,7 +65,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``belief-nlp`` with ``argv`` (default: ``sys.argv[1:]``); return the exit code.
 
     Never raises for bad input or failed runs: 0 success, 2 bad input (one line
-    on stderr), 3 planning or solving failed.
+    on stderr), 3 planning or solving failed, 1 an internal error (one line;
+    the traceback with -v).
     """
     parser = build_parser()
     try:
@@ -95,5 +96,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # noqa: BLE001 - a bug of ours: one line, the traceback only with -v
+        if getattr(args, "verbose", 0):
+            import traceback
+
+            traceback.print_exc()
+        print(f"{PROG} {args.command}: internal error: {type(exc).__name__}: {_one_line(exc)} "
+              f"(rerun with -v for the traceback, and please report it)", file=sys.stderr)
+        return EXIT_INTERNAL
     finally:
         undo()

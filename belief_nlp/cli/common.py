@@ -13,7 +13,7 @@ from typing import Callable
 
 from ..errors import ValidationError
 
-EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED = 0, 2, 3
+EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERNAL = 0, 2, 3, 1
 
 #: Smoother statuses reported as failures (exit code 3). The others --
 #: converged, max_iter, time_limit, non_monotone, infeasible_iterate -- end
