@@ -79,3 +79,11 @@ def test_policy_orders_its_margins():
         SafetyPolicy(conic=1e-8, accept=1e-7)
     p = DEFAULT_POLICY
     assert p.warm_start >= p.conic > p.accept >= 0 and p.nlp > p.accept
+
+
+def test_summary_names_the_cost_and_the_proof(run, capfd):
+    sc, res = run
+    text = res.summary()
+    assert "steering cost at K = 10" in text and "certificates+sampling" in text and res.method in text
+    r = bn.smooth(sc, res.path, max_iter=2, verbose=True)
+    assert "CCP iteration 1" in capfd.readouterr().err and r.nit == 2

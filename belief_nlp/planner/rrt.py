@@ -191,9 +191,10 @@ class IGRRTStar:
 
         progress = None
         if o.progress:
-            from tqdm.auto import tqdm
+            from .._progress import progress_bar
 
-            progress = tqdm(total=o.n_nodes, initial=1, desc="IG-RRT*", unit="node")
+            progress = progress_bar(o.n_nodes, "IG-RRT*", "node")
+            progress.update(1)
         log.info("IG-RRT* on %r: n_nodes=%d seed=%s metric=%s noise=%s alpha=%g", sc.name, o.n_nodes, o.seed,
                  o.metric, o.noise, o.alpha)
         try:

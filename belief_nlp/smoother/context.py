@@ -195,9 +195,10 @@ class SmoothingProblem:
         return self.stop_requested or self.out_of_time()
 
     def progress_bar(self, desc: str) -> Any:
-        """A tqdm bar over ``max_iter`` when progress was asked for, else None."""
+        """A progress bar over ``max_iter`` when progress was asked for, else None
+        (tqdm on a terminal or in Jupyter, periodic log lines otherwise)."""
         if not self.progress:
             return None
-        from tqdm.auto import tqdm
+        from .._progress import progress_bar
 
-        return tqdm(total=self.max_iter, desc=desc, unit="it")
+        return progress_bar(self.max_iter, desc, "it")

@@ -25,6 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from contextlib import contextmanager
 from typing import Any, Callable
 
 import numpy as np
@@ -43,6 +44,22 @@ __all__ = ["smooth"]
 log = logging.getLogger("belief_nlp.smoother")
 
 MAX_K = 2000
+
+
+@contextmanager
+def _logging_to_stderr():
+    """INFO lines of the library on stderr for the duration of one call."""
+    lib = logging.getLogger("belief_nlp")
+    handler = logging.StreamHandler()
+    handler.setFormatter(logging.Formatter("%(name)s: %(message)s"))
+    old = lib.level
+    lib.addHandler(handler)
+    lib.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        lib.removeHandler(handler)
+        lib.setLevel(old)
 
 
 def _is_int(v: Any) -> bool:
@@ -92,7 +109,7 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
            max_iter: int | None = None, tol: float = 1e-4, solver: str | None = None, alpha: float | None = None, *,
            time_limit: float | None = None, solver_options: dict | None = None, keep_iterates: bool = False,
            progress: bool = False, sensing: str = "minimal", callback: Callable | None = None,
-           **options: Any) -> SmoothResult:
+           verbose: bool = False, **options: Any) -> SmoothResult:
     """Smooth a feasible belief path toward a local optimum of the paper's problem.
 
     Parameters
@@ -116,6 +133,7 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
     progress : show a progress bar.
     sensing : how the warm start sets covariances ("minimal" or "path").
     callback : ``callback(record)`` after every iteration; returning True stops.
+    verbose : log every iteration (and the method's decisions) to stderr.
     **options : the method's own options (``bn.available_methods()``;
         ``get_method(name).options`` documents them).
 
@@ -124,6 +142,11 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
     SmoothResult: its path is always exactly safe and independently verified,
     never costlier than the warm start; ``success`` when the method converged.
     """
+    if verbose:
+        with _logging_to_stderr():
+            return smooth(scenario, path, method, K, max_iter, tol, solver, alpha, time_limit=time_limit,
+                          solver_options=solver_options, keep_iterates=keep_iterates, progress=progress,
+                          sensing=sensing, callback=callback, verbose=False, **options)
     t0 = time.perf_counter()
     scenario = _scenario(scenario)
     path = _path(path)

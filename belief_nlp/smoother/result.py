@@ -167,6 +167,19 @@ class SmoothResult:
         return _same(json.loads(json.dumps(self.to_dict(), default=float)),
                      json.loads(json.dumps(other.to_dict(), default=float)))
 
+    def summary(self) -> str:
+        """A few lines for people: status, the cost and its parts, proof, time."""
+        head = "converged" if self.success else f"NOT converged ({self.status})"
+        v = self.verification
+        lines = [f"{self.method} {head}: {self.message}",
+                 f"  steering cost at K = {self.path.K}: {self.initial_cost:.6g} (warm start) -> {self.cost:.6g} "
+                 f"= control {self.control:.6g} m^2 + {self.alpha:g} * information {self.information:.6g} nats",
+                 f"  {self.nit} iterations, {self.timings.get('total', float('nan')):.3g} s "
+                 f"(solver {self.timings.get('solver', float('nan')):.3g} s); solver {self.solver or '-'}",
+                 f"  verified {'safe' if self.safe else 'UNSAFE'} by {v.get('proof', 'sampling')}, "
+                 f"min margin {v.get('min_margin', float('nan')):.4g}"]
+        return "\n".join(lines)
+
     def __repr__(self) -> str:
         return (f"SmoothResult(method={self.method!r}, status={self.status!r}, cost={self.cost:.6g}, "
                 f"nit={self.nit}, success={self.success})")
