@@ -82,3 +82,18 @@ def test_a_nonsense_solver_answer_is_a_failed_subproblem(small, monkeypatch, fau
     assert res.status in ("solver_failed", "infeasible_iterate") and not res.success
     assert res.safe and res.cost <= res.initial_cost
     assert bn.verify(sc, res.path, certificates=res.certificates).proof == "certificates+sampling"
+
+
+def test_an_infeasible_horizon_falls_back_to_one_step_per_edge_and_says_so():
+    """IG-RRT* seed 9 (N = 300, alpha = 0.1, per-step noise) gives a 3-edge plan
+    whose K = 20 warm start is infeasible: smooth falls back, or raises when told not to."""
+    sc = bn.load_scenario("paper-multi")
+    planned = bn.plan(sc, n_nodes=300, seed=9, alpha=0.1, noise="per_step", max_radius=1.5)
+    with pytest.raises(bn.InfeasibleStartError):
+        bn.warm_start(sc, planned.path, K=20)
+    res = bn.smooth(sc, planned, K=20, max_iter=3)           # a PlanResult is a path too
+    ws = res.stats["warm_start"]
+    assert ws["fallback"] and ws["requested_K"] == 20 and ws["K"] == planned.path.K == res.path.K
+    assert "one step per path edge" in res.message and res.safe
+    with pytest.raises(bn.InfeasibleStartError):
+        bn.smooth(sc, planned, K=20, max_iter=3, k_fallback=False)

@@ -30,7 +30,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import ValidationError
+from ..errors import InfeasibleStartError, ValidationError
 from ..model import BeliefModel, Layout
 from ..path import BeliefPath
 from ..scenario import Scenario, load_scenario
@@ -109,7 +109,7 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
            max_iter: int | None = None, tol: float = 1e-4, solver: str | None = None, alpha: float | None = None, *,
            time_limit: float | None = None, solver_options: dict | None = None, keep_iterates: bool = False,
            progress: bool = False, sensing: str = "minimal", callback: Callable | None = None,
-           verbose: bool = False, **options: Any) -> SmoothResult:
+           verbose: bool = False, k_fallback: bool = True, **options: Any) -> SmoothResult:
     """Smooth a feasible belief path toward a local optimum of the paper's problem.
 
     Parameters
@@ -134,6 +134,10 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
     sensing : how the warm start sets covariances ("minimal" or "path").
     callback : ``callback(record)`` after every iteration; returning True stops.
     verbose : log every iteration (and the method's decisions) to stderr.
+    k_fallback : when no feasible warm start exists at the requested K (per-step
+        noise on every sub-step can make a sub-transition next to an obstacle
+        unsafe), fall back to one step per path edge and say so in
+        ``stats["warm_start"]`` and the message; False raises instead.
     **options : the method's own options (``bn.available_methods()``;
         ``get_method(name).options`` documents them).
 
@@ -146,7 +150,7 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
         with _logging_to_stderr():
             return smooth(scenario, path, method, K, max_iter, tol, solver, alpha, time_limit=time_limit,
                           solver_options=solver_options, keep_iterates=keep_iterates, progress=progress,
-                          sensing=sensing, callback=callback, verbose=False, **options)
+                          sensing=sensing, callback=callback, verbose=False, k_fallback=k_fallback, **options)
     t0 = time.perf_counter()
     scenario = _scenario(scenario)
     path = _path(path)
@@ -164,8 +168,9 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
         if K is not None and K != path.K:
             raise ValidationError("K", f"the given warm start has K = {path.K}, not {K}")
         warm = path
+        ws_info = {"K": warm.K, "requested_K": K, "fallback": False}
     else:
-        warm = warm_start(scenario, path, K=K, sensing=sensing)
+        warm, ws_info = _warm_start(scenario, path, K, sensing, k_fallback)
     model = BeliefModel(scenario, warm.K, alpha)
     problem = SmoothingProblem(scenario, warm, model, max_iter=m.max_iter if max_iter is None else int(max_iter),
                                tol=tol, time_limit=time_limit, t0=t0, solver=solver_name,
@@ -173,10 +178,29 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
                                keep_iterates=keep_iterates, callback=callback, method=m.name)
     t_setup = time.perf_counter() - t0
     outcome = m.run(problem, **opts)
+    outcome.stats.setdefault("warm_start", ws_info)
+    if ws_info["fallback"]:
+        outcome.message += (f" [warm start: K = {ws_info['requested_K']} was infeasible, one step per path edge "
+                            f"used (K = {warm.K})]")
     if not isinstance(outcome, Outcome) or outcome.status not in STATUSES:
         raise ValidationError("method", f"{m.name!r} returned {outcome!r}; a method returns an Outcome "
                                         f"with a status from {sorted(STATUSES)}")
     return _finish(problem, outcome, m, t_setup)
+
+
+def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str,
+                fallback: bool) -> tuple[WarmStart, dict]:
+    """The warm start at K, or -- when K is infeasible and fallback allowed -- at
+    one step per path edge; with what happened."""
+    try:
+        warm = warm_start(scenario, path, K=K, sensing=sensing)
+        return warm, {"K": warm.K, "requested_K": K, "fallback": False}
+    except InfeasibleStartError as exc:
+        if not fallback or K is None or K == path.K:
+            raise
+        log.warning("no feasible warm start at K = %d (%s); using one step per path edge (K = %d)", K, exc, path.K)
+        warm = warm_start(scenario, path, K=None, sensing=sensing)
+        return warm, {"K": warm.K, "requested_K": K, "fallback": True, "reason": str(exc)}
 
 
 def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: float) -> SmoothResult:
