@@ -64,6 +64,11 @@ class PlannerOptions:
         so the step is always lossless) or ``"linear"`` (the authors: x and P
         interpolated linearly).
     max_radius : cap of the rewiring radius (in cost units); scenario default.
+    radius_per_alpha : the cap grows by this much per unit of alpha:
+        cap = max_radius + radius_per_alpha * alpha. With per-step noise an
+        edge's information cost, alpha/2 log det((P + W) P^-1), does not shrink
+        with its length, so a cap fit for alpha = 0.1 finds no path at 1
+        (paper-multi: 0.3 + 1.2 alpha plans both of the paper's settings).
     gamma : radius constant: r_n = min(max_radius, gamma (log n / n)^(1/d)).
         None gives the authors' value 50 * gamma* (13.8 in 2-D).
     goal_bias : probability of drawing the sample's mean in the target
@@ -93,6 +98,7 @@ class PlannerOptions:
     eig_ratio: float = 10.0
     steering: str = "geodesic"
     max_radius: float = 0.5
+    radius_per_alpha: float = 0.0
     gamma: float | None = None
     goal_bias: float = 0.05
     convergence_tol: float | None = None
@@ -205,6 +211,7 @@ def resolve_options(scenario_defaults: dict | None, scenario_alpha: float, **kwa
     o["eig_ratio"] = _real("eig_ratio", o["eig_ratio"], 1.0, 1e12)
     o["steering"] = _choice("steering", o["steering"], STEERING)
     o["max_radius"] = _real("max_radius", o["max_radius"], 0.0, low_open=True)
+    o["radius_per_alpha"] = _real("radius_per_alpha", o["radius_per_alpha"], 0.0, 1e6)
     if o["gamma"] is not None:
         o["gamma"] = _real("gamma", o["gamma"], 0.0, low_open=True)
     o["goal_bias"] = _real("goal_bias", o["goal_bias"], 0.0, 1.0, high_open=True)

@@ -157,7 +157,9 @@ class IGRRTStar:
 
     def _radius(self, n_live: int) -> float:
         n = n_live + 1
-        return min(self.options.max_radius, self.gamma * (math.log(n) / n) ** (1.0 / self.dim))
+        o = self.options
+        cap = o.max_radius + o.radius_per_alpha * o.alpha
+        return min(cap, self.gamma * (math.log(n) / n) ** (1.0 / self.dim))
 
     # ------------------------------------------------------------------- plan
     def plan(self) -> PlanResult:
@@ -502,7 +504,7 @@ def _safe_logdet(P: np.ndarray) -> float:
 
 
 def plan(scenario: Scenario, n_nodes: int = 500, seed: int | None = 0, alpha: float | None = None,
-         metric: str = "entropy", noise: str = "per_metre", time_limit: float | None = None,
+         metric: str = "entropy", noise: str | None = None, time_limit: float | None = None,
          branch_and_bound: bool = True, **options: Any) -> PlanResult:
     """Plan a minimum-sensing belief path with IG-RRT*.
 
@@ -515,7 +517,10 @@ def plan(scenario: Scenario, n_nodes: int = 500, seed: int | None = 0, alpha: fl
     alpha : information weight; None uses ``scenario.alpha``.
     metric : ``"entropy"`` (default, nats), ``"wasserstein"`` or ``"hellinger"``.
     noise : ``"per_metre"`` (P_hat = P + W_rate ||dx||, the authors') or
-        ``"per_step"`` (P_hat = P + W per edge, whatever its length).
+        ``"per_step"`` (P_hat = P + W per edge, whatever its length, the
+        smoother's model); None = the scenario's ``[planner] noise``, else
+        per_metre. paper-multi says per_step, so ``smooth(sc, plan(sc).path)``
+        works as it is.
     time_limit : seconds, or None.
     branch_and_bound : prune nodes that cannot improve on the best path.
     **options : the other fields of :class:`~.options.PlannerOptions`
@@ -528,6 +533,8 @@ def plan(scenario: Scenario, n_nodes: int = 500, seed: int | None = 0, alpha: fl
         ``success`` is True only for a path that passed
         :func:`belief_nlp.verify`; otherwise ``message`` says why.
     """
-    planner = IGRRTStar(scenario, n_nodes=n_nodes, seed=seed, alpha=alpha, metric=metric, noise=noise,
+    if noise is not None:
+        options["noise"] = noise
+    planner = IGRRTStar(scenario, n_nodes=n_nodes, seed=seed, alpha=alpha, metric=metric,
                         time_limit=time_limit, branch_and_bound=branch_and_bound, **options)
     return planner.plan()
