@@ -1,5 +1,6 @@
 """Built-in smoothing methods; importing a module registers it (one file per method)."""
 
-from . import ccp, ipopt  # noqa: F401
+from . import ccp, ipopt  # noqa: F401, I001 - registration order: ccp, ipopt, auto
+from . import auto  # noqa: F401
 
-__all__ = ["ccp", "ipopt"]
+__all__ = ["auto", "ccp", "ipopt"]

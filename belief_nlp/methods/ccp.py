@@ -177,8 +177,12 @@ def _checked(status: str, zv: np.ndarray | None, t: float, n: int, step: Compile
 
 def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | None = None,
         cache_dir: str | Path | bool | None = None, constraints: Callable | None = None,
-        hook: Callable | None = None, _fail_at: int | None = None) -> Outcome:
-    """CCP from the problem's start (see the module doc and :data:`METHOD`)."""
+        hook: Callable | None = None, _fail_at: int | None = None, _start: Layout | None = None) -> Outcome:
+    """CCP from the problem's start (see the module doc and :data:`METHOD`).
+
+    ``_start`` (for composite methods): continue from this exactly safe point
+    instead; iterations are numbered after the problem's history and count
+    against the same ``max_iter``."""
     model, D = problem.model, problem.model.data
     solver = (problem.solver or "CLARABEL").upper()
     _check_solver_options(solver, problem.solver_options)
@@ -189,13 +193,14 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     if constraints is not None:
         step = step.with_constraints(constraints(step))
     build_time = time.perf_counter() - t_build
-    z, cost = problem.start, problem.cost0
+    z, cost = (problem.start, problem.cost0) if _start is None else (_start, model.cost(_start)[0])
+    first = len(problem.history)                 # 1 for a plain run; after a previous stage's records
     rho_e = np.full((D.K, D.J), float(rho)) if rho else initial_rho(model, z)
     rho_s = rho_e.copy()
     status, message = "max_iter", STATUSES["max_iter"]
     bar = problem.progress_bar("CCP")
     stats = {"compile": origin, "build_time": build_time, "solver_iterations": 0}
-    for it in range(1, problem.max_iter + 1):
+    for it in range(first, problem.max_iter + 1):
         if problem.out_of_time():
             status, message = "time_limit", STATUSES["time_limit"]
             break
@@ -309,6 +314,7 @@ METHOD = register(Method(
         "hook": Option(None, "fn(step, iteration) before each solve, parameters set; may return constraints to "
                              "add for the rest of the run", _callable_or_none),
         "_fail_at": Option(None, "testing: make every subproblem from this iteration on fail"),
+        "_start": Option(None, "composite methods: continue from this exactly safe point"),
     },
 ))
 

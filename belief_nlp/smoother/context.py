@@ -70,6 +70,7 @@ class Outcome:
     point: Layout | None = None
     solver: str = ""
     stats: dict = field(default_factory=dict)
+    label: str = ""          # what answered, when not the method's name (e.g. "auto:ccp")
 
 
 class SmoothingProblem:

@@ -236,7 +236,8 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
         status = "above_start" if candidates and candidates[0][0] > problem.cost0 else "infeasible_iterate"
         message = f"{message}; {origin} is returned ({STATUSES[status]})"
     solver = outcome.solver or problem.solver or ""
-    meta = {"method": m.name, "solver": solver, "alpha": model.data.alpha}
+    method_name = outcome.label or m.name
+    meta = {"method": method_name, "solver": solver, "alpha": model.data.alpha}
     path = model.to_path(answer, meta=meta)
     lam_si = answer.lam / model.data.sigma
     report = verify(sc, path, certificates=lam_si)
@@ -248,7 +249,7 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
     nit = len(hist) - 1
     return SmoothResult(
         path=path, cost=c, control=ctrl, information=info, success=status == "converged", status=status,
-        message=message, nit=nit, history=hist, method=m.name, solver=solver, alpha=model.data.alpha,
+        message=message, nit=nit, history=hist, method=method_name, solver=solver, alpha=model.data.alpha,
         timings={"setup": t_setup, "solver": float(sum(h.solve_time for h in hist)),
                  "total": time.perf_counter() - problem.t0},
         verification=report.to_dict(), initial_cost=problem.cost0, iterates=iterates, stats=dict(outcome.stats),

@@ -1,0 +1,86 @@
+"""auto: the NLP first, the convex-concave procedure as its fallback.
+
+IPOPT solves the exact NLP from the warm start. Its answer is taken when
+IPOPT converged and the point passes the shared certified check (the driver
+then also verifies it and holds it to the warm start's cost). Otherwise --
+failure, stall, time, or an unsafe end point -- CCP continues from the best
+exactly safe point found so far (IPOPT's recorded candidates, at worst the
+warm start), and its monotone descent gives the answer. With ``polish``,
+CCP also runs a few steps after a converged IPOPT answer and keeps them
+only if they lower the cost (CCP sometimes finds a lower local optimum).
+
+One budget: ``max_iter`` counts IPOPT iterations and CCP steps together
+(``ccp_reserve`` of it is kept for CCP); the time limit is the run's. The
+result's ``method`` says which stage answered ("auto:ipopt" or "auto:ccp")
+and the history holds both stages' records.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..smoother.context import Outcome, SmoothingProblem
+from ..smoother.registry import Method, Option, register
+from . import ccp, ipopt
+
+__all__ = ["run"]
+
+
+def _stage(problem: SmoothingProblem, budget: int, fn, solver: str, solver_options: dict, **kw: Any) -> Outcome:
+    """Run one stage with ``budget`` iterations in total so far (the shared
+    count), its own solver and solver options."""
+    saved = problem.max_iter, problem.solver, problem.solver_options
+    problem.max_iter = min(budget, saved[0])
+    problem.solver, problem.solver_options = solver, dict(solver_options)
+    try:
+        return fn(problem, **kw)
+    finally:
+        problem.max_iter, problem.solver, problem.solver_options = saved
+
+
+def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, polish: int = 0, ccp_solver: str = "CLARABEL",
+        ccp_solver_options: dict | None = None) -> Outcome:
+    """IPOPT, then CCP when IPOPT's answer is not taken (module doc). The
+    run's ``solver_options`` go to IPOPT; CCP's come from ``ccp_solver_options``."""
+    ccp_opts = (ccp_solver, ccp_solver_options or {})
+    reserve = min(ccp_reserve, problem.max_iter // 2)
+    first = _stage(problem, problem.max_iter - reserve, ipopt.run, "IPOPT", problem.solver_options)
+    stats: dict[str, Any] = {"ipopt": first.stats, "stages": ["ipopt"]}
+    if first.status == "converged" and first.point is not None:
+        chk = problem.check(first.point)
+        if chk.safe and problem.model.cost(chk.point)[0] <= problem.cost0:
+            if not polish or problem.out_of_time():
+                return Outcome("converged", f"IPOPT: {first.message}", chk.point, "IPOPT", stats, "auto:ipopt")
+            problem.points[len(problem.history) - 1] = chk.point
+            second = _stage(problem, len(problem.history) + polish - 1, ccp.run, *ccp_opts, _start=chk.point)
+            stats.update(ccp=second.stats, stages=["ipopt", "ccp polish"])
+            # the driver picks the lowest-cost verified candidate: IPOPT's point or a polished one
+            return Outcome("converged", f"IPOPT: {first.message}; CCP polish: {second.status}", None, "IPOPT+CCP",
+                           stats, "auto:ipopt+ccp")
+    if problem.out_of_time() or problem.stop_requested:
+        return Outcome(first.status, f"IPOPT: {first.message}", first.point, "IPOPT", stats, "auto:ipopt")
+    # CCP from the best exactly safe point so far
+    best = min(problem.points.items(), key=lambda kv: problem.model.cost(kv[1])[0], default=(None, None))[1]
+    start = best if best is not None and problem.model.cost(best)[0] <= problem.cost0 else problem.start
+    second = _stage(problem, problem.max_iter, ccp.run, *ccp_opts, _start=start)
+    stats.update(ccp=second.stats, stages=["ipopt", "ccp"])
+    return Outcome(second.status, f"IPOPT: {first.status}; CCP from the best safe point: {second.message}",
+                   None, ccp_solver, stats, "auto:ccp")
+
+
+def _count(v: Any) -> str | None:
+    return None if isinstance(v, int) and not isinstance(v, bool) and v >= 0 else "must be an integer >= 0"
+
+
+METHOD = register(Method(
+    name="auto", run=run, max_iter=3000, default_solver="IPOPT",
+    check_solver=lambda s: None if s.upper() == "IPOPT" else f"method 'auto' runs IPOPT first (ccp_solver= picks "
+                                                               f"the CCP stage's solver), got {s!r}",
+    description="IPOPT on the exact NLP; CCP from the best safe point when IPOPT's answer is not taken",
+    iteration="one IPOPT iteration or one CCP step",
+    options={"ccp_reserve": Option(50, "iterations of the budget kept for the CCP fallback", _count),
+             "polish": Option(0, "CCP steps tried after a converged IPOPT answer (kept only if lower)", _count),
+             "ccp_solver": Option("CLARABEL", "conic solver of the CCP stage", ccp._check_solver),
+             "ccp_solver_options": Option(None, "solver options of the CCP stage (solver_options go to IPOPT)",
+                                          lambda v: None if v is None or isinstance(v, dict) else "must be a dict")},
+))

@@ -1,0 +1,43 @@
+"""method="auto": IPOPT first, CCP from the best safe point when IPOPT's answer is not taken."""
+
+from __future__ import annotations
+
+import pytest
+
+import belief_nlp as bn
+
+from conftest import paper_multi_path_pair
+
+
+@pytest.fixture(scope="module")
+def small():
+    return paper_multi_path_pair(steps_per_segment=2)        # K = 10
+
+
+def test_a_converged_ipopt_answer_is_taken(small):
+    sc, path = small
+    res = bn.smooth(sc, path, method="auto", alpha=1.0)
+    assert res.method == "auto:ipopt" and res.success and res.safe
+    ref = bn.smooth(sc, path, method="ipopt", alpha=1.0)
+    assert res.cost == pytest.approx(ref.cost, rel=1e-9)
+    assert res.stats["stages"] == ["ipopt"]
+
+
+def test_ccp_continues_when_ipopt_stops_early(small):
+    sc, path = small
+    # IPOPT may only take 5 iterations: it stops unconverged and CCP finishes from its best safe point
+    res = bn.smooth(sc, path, method="auto", alpha=1.0, solver_options={"max_iter": 5}, max_iter=200)
+    assert res.method == "auto:ccp" and res.stats["stages"] == ["ipopt", "ccp"]
+    assert res.safe and res.cost <= res.initial_cost
+    its = [h.iteration for h in res.history]
+    assert its == sorted(its) and len(set(its)) == len(its) and res.nit <= 200
+    ccp_only = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=200)
+    assert res.cost == pytest.approx(ccp_only.cost, rel=2e-2)       # the same local optimum region
+
+
+def test_polish_never_raises_the_cost(small):
+    sc, path = small
+    plain = bn.smooth(sc, path, method="auto", alpha=1.0)
+    polished = bn.smooth(sc, path, method="auto", alpha=1.0, polish=3)
+    assert polished.cost <= plain.cost * (1 + 1e-12) and polished.safe
+    assert polished.method in ("auto:ipopt+ccp", "auto:ipopt")
