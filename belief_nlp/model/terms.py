@@ -21,7 +21,7 @@ import casadi as ca
 __all__ = [
     "bilinear", "quad", "quad_inv", "h1_lmi", "h2", "collision_margin_inv", "collision_margin_cov",
     "kalman_lmi", "kalman_residual", "logdet", "logdet_epigraph_lmi", "target_lmis",
-    "target_margin", "target_margin_cov", "target_margin_sq", "control", "information", "predict", "update_cov",
+    "target_margin", "target_margin_cov", "target_margin_sq", "target_margin_sq_cov", "control", "information", "predict", "update_cov",
     "information_cov",
 ]
 
@@ -114,6 +114,15 @@ def target_margin_sq(x, Y, a, bt, chi2):
     possibly negative number)."""
     r = bt - ca.dot(a, x)
     return r * ca.fabs(r) - chi2 * quad_inv(a, Y)
+
+
+def target_margin_sq_cov(x, P, a, bt, chi2):
+    """target_margin_sq with the final covariance P: (bt - a^T x) |bt - a^T x| - chi2 a^T P a
+    (length^2); >= 0 exactly when target_margin_cov >= 0 (for P >= 0), and
+    smooth and defined for any symmetric P a solver may visit (no square root,
+    no inverse)."""
+    r = bt - ca.dot(a, x)
+    return r * ca.fabs(r) - chi2 * quad(a, P)
 
 
 def control(x_prev, x):
