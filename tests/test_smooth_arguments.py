@@ -84,16 +84,35 @@ def test_a_nonsense_solver_answer_is_a_failed_subproblem(small, monkeypatch, fau
     assert bn.verify(sc, res.path, certificates=res.certificates).proof == "certificates+sampling"
 
 
-def test_an_infeasible_horizon_falls_back_to_one_step_per_edge_and_says_so():
+def test_a_horizon_infeasible_by_length_is_allotted_by_feasibility():
     """IG-RRT* seed 9 (N = 300, alpha = 0.1, per-step noise) gives a 3-edge plan
-    whose K = 20 warm start is infeasible: smooth falls back, or raises when told not to."""
+    whose steps allotted by length make a sub-step next to an obstacle
+    infeasible; allotting them where they stay clear gives K = 20."""
     sc = bn.load_scenario("paper-multi")
     planned = bn.plan(sc, n_nodes=300, seed=9, alpha=0.1, noise="per_step", max_radius=1.5)
-    with pytest.raises(bn.InfeasibleStartError):
-        bn.warm_start(sc, planned.path, K=20)
-    res = bn.smooth(sc, planned, K=20, max_iter=3)           # a PlanResult is a path too
+    ws = bn.warm_start(sc, planned.path, K=20)
+    assert ws.K == 20 and ws.allocation == "feasibility" and bn.verify(sc, ws.path).safe
+    for v in planned.path.x:                                   # every vertex of the plan kept
+        assert np.min(np.linalg.norm(ws.path.x - v, axis=1)) < 1e-12
+
+
+def test_an_infeasible_horizon_falls_back_to_one_step_per_edge_and_says_so(monkeypatch):
+    """When no allocation at K works, smooth falls back to one step per edge
+    and says so, or raises when told not to (simulated: K-step starts refused)."""
+    import belief_nlp.smoother.driver as driver
+
+    sc, path = paper_multi_path_pair(steps_per_segment=1)        # 5 edges
+    real = driver.warm_start
+
+    def refuse_k(scenario, p, K=None, sensing="minimal"):
+        if K is not None and K != p.K:
+            raise bn.InfeasibleStartError("no feasible allocation (simulated)", transition=1, obstacle="x")
+        return real(scenario, p, K=K, sensing=sensing)
+
+    monkeypatch.setattr(driver, "warm_start", refuse_k)
+    res = bn.smooth(sc, path, K=20, max_iter=3)
     ws = res.stats["warm_start"]
-    assert ws["fallback"] and ws["requested_K"] == 20 and ws["K"] == planned.path.K == res.path.K
+    assert ws["fallback"] and ws["requested_K"] == 20 and ws["K"] == path.K == res.path.K
     assert "one step per path edge" in res.message and res.safe
     with pytest.raises(bn.InfeasibleStartError):
-        bn.smooth(sc, planned, K=20, max_iter=3, k_fallback=False)
+        bn.smooth(sc, path, K=20, max_iter=3, k_fallback=False)

@@ -51,7 +51,7 @@ from ..path import BeliefPath
 from ..scenario import Scenario
 from ..verify import VerificationReport, verify
 
-__all__ = ["WarmStart", "warm_start", "resample_means"]
+__all__ = ["WarmStart", "warm_start", "resample_means", "allocate_steps"]
 
 # Clearance margin required of the start point, relative to chi2, so that
 # solver rounding in the first subproblem never meets an active constraint
@@ -71,16 +71,70 @@ class WarmStart:
         hazards ordered as ``scenario.hazards``.
     report : independent verification of ``path``.
     added_sensing : number of halvings applied to make transitions clear.
+    allocation : "length" (steps in proportion to edge length) or
+        "feasibility" (:func:`allocate_steps`, after the first was infeasible).
     """
 
     path: BeliefPath
     lam: np.ndarray
     report: VerificationReport
     added_sensing: int = 0
+    allocation: str = "length"      # how steps were allotted to edges: "length" or "feasibility"
 
     @property
     def K(self) -> int:
         return self.path.K
+
+
+def _split(x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Means with edge e of the polyline cut into steps[e] equal pieces."""
+    pts = [x[0]]
+    for e in range(x.shape[0] - 1):
+        t = np.arange(1, steps[e] + 1) / steps[e]
+        pts.extend(x[e] + t[:, None] * (x[e + 1] - x[e]))
+    return np.array(pts)
+
+
+def allocate_steps(scenario: Scenario, x: np.ndarray, K: int, hazards: PolytopeSet | None = None) -> np.ndarray | None:
+    """Steps per edge (summing to K) such that every sub-transition can be made
+    clear, or None when no such allocation is found.
+
+    A sub-step ending next to an obstacle fails whatever sensing precedes it
+    when the step's own noise W already reaches the obstacle; such an edge
+    must not be cut finer there. A sub-transition is *possible* when it is
+    clear with a near-exact start (P_prev = 1e-9 W; the first step starts from
+    P0). Extra steps go, one at a time, to the edge with the longest sub-step
+    among those whose finer split stays possible (open space gets the steps,
+    tight passages keep long steps)."""
+    hazards = hazards or PolytopeSet.build(scenario.hazards)
+    x = np.asarray(x, float)
+    E = x.shape[0] - 1
+    W = scenario.W
+    thr = scenario.chi2 * (1 + _START_MARGIN)
+    lengths = np.linalg.norm(np.diff(x, axis=0), axis=1)
+    cache: dict = {}
+
+    def possible(e: int, n: int) -> bool:
+        if (e, n) not in cache:
+            t = np.arange(n + 1) / n
+            pts = x[e] + t[:, None] * (x[e + 1] - x[e])
+            P = np.broadcast_to(1e-9 * W, (n, *W.shape)).copy()
+            if e == 0:
+                P[0] = scenario.P0
+            tm = transition_minimiser(pts[:-1], P, pts[1:], W, hazards, threshold=thr)
+            cache[(e, n)] = bool(np.all(tm.dist2 >= thr))
+        return cache[(e, n)]
+
+    steps = np.ones(E, dtype=int)
+    if not all(possible(e, 1) for e in range(E)):
+        return None
+    for _ in range(K - E):
+        open_ = [e for e in range(E) if possible(e, steps[e] + 1)]
+        if not open_:
+            return None
+        e = max(open_, key=lambda i: lengths[i] / steps[i])
+        steps[e] += 1
+    return steps
 
 
 def resample_means(x: np.ndarray, K: int | None) -> np.ndarray:
@@ -101,11 +155,7 @@ def resample_means(x: np.ndarray, K: int | None) -> np.ndarray:
     share = lengths / max(lengths.sum(), 1e-300) * K
     for _ in range(extra):
         steps[np.argmax(share - steps)] += 1
-    pts = [x[0]]
-    for e in range(n_edges):
-        t = np.arange(1, steps[e] + 1) / steps[e]
-        pts.extend(x[e] + t[:, None] * (x[e + 1] - x[e]))
-    return np.array(pts)
+    return _split(x, steps)
 
 
 def _target_posteriors(path: BeliefPath, x_new: np.ndarray) -> np.ndarray:
@@ -142,8 +192,27 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
     ``path`` may come from the planner (per-metre noise), a file, or a user's
     polyline with covariances (see :meth:`BeliefPath.from_covariances`). It must
     start at the scenario's start mean. See the module docstring for what
-    happens to covariances and sensing.
+    happens to covariances and sensing. With K larger than the path's edge
+    count, steps are first allotted in proportion to edge length; if that
+    start is infeasible, by :func:`allocate_steps` (``WarmStart.allocation``
+    says which).
     """
+    try:
+        return _warm_start(scenario, path, K, sensing, None)
+    except InfeasibleStartError:
+        if K is None or not isinstance(path, BeliefPath) or K <= path.K:
+            raise
+        steps = allocate_steps(scenario, path.x, K)
+        if steps is None:
+            raise
+        ws = _warm_start(scenario, path, K, sensing, steps)
+        ws.allocation = "feasibility"
+        return ws
+
+
+def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str,
+                steps: np.ndarray | None) -> WarmStart:
+    """:func:`warm_start` with the means cut by ``steps`` per edge (None: by length)."""
     if not isinstance(path, BeliefPath):
         raise ValidationError("path", f"must be a BeliefPath, got {type(path).__name__}")
     if path.dim != scenario.dim:
@@ -152,7 +221,7 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
         raise ValidationError("sensing", f"must be 'minimal' or 'path', got {sensing!r}")
     if not np.allclose(path.x[0], scenario.x0, atol=1e-9):
         raise ValidationError("path.x", "the path must start at the scenario's start mean x0")
-    x = resample_means(path.x, K)
+    x = resample_means(path.x, K) if steps is None else _split(np.asarray(path.x, float), steps)
     K_ = x.shape[0] - 1
     target_P = _target_posteriors(path, x)
     chi2 = scenario.chi2
