@@ -300,7 +300,14 @@ def plot_belief_path(scenario, path, ax=None, *, prior_color="tab:blue", posteri
             handles.append(Line2D([], [], color=prior_color, label=f"{pct}prior ellipse"))
         if show_posterior:
             handles.append(Line2D([], [], color=posterior_color, label=f"{pct}posterior ellipse"))
-        ax.legend(handles=handles, loc="best", fontsize=8)
+        if show_scenario:
+            from matplotlib.patches import Patch
+
+            handles += [Line2D([], [], color="black", marker="o", linestyle="none", label="start"),
+                        Patch(facecolor=to_rgba("tab:green", 0.35), edgecolor="tab:green", label="target"),
+                        Patch(facecolor="0.5", edgecolor="0.3", label="obstacle")]
+        # outside the map, so it never covers the path
+        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize=8)
     return fig, ax
 
 
@@ -422,14 +429,29 @@ def plot_cost_history(histories: Any, ax=None, labels: Sequence[str] | None = No
         costs = np.where(np.isfinite(costs), costs, np.nan)
         ax.plot(np.arange(costs.size), costs, marker=marker, markersize=3, label=label)
     ax.set_xlabel(xlabel)
-    ax.set_ylabel(ylabel)
+    ax.set_ylabel(ylabel if "[" in ylabel else f"{ylabel} [m^2 + alpha nats]")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     if log:
         ax.set_yscale("log")
+    _plain_numbers(ax.yaxis)
     ax.grid(True, alpha=0.3)
     if any(label is not None for label, _ in items):
         ax.legend(fontsize=8)
     return fig, ax
+
+
+def _plain_numbers(axis) -> None:
+    """Plain tick labels (2, 3, 4 rather than 2x10^0) on linear and log axes."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, ScalarFormatter
+
+    if axis.get_scale() == "log":
+        axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        axis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
+        axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    else:
+        fmt = ScalarFormatter(useOffset=False)
+        fmt.set_scientific(False)
+        axis.set_major_formatter(fmt)
 
 
 def _runs(obj: Any) -> list[np.ndarray]:
