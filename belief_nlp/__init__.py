@@ -20,6 +20,7 @@ from .smoother import register as register_method
 from .methods.ccp import ccp_subproblem
 from .planner import IGRRTStar, PlanResult, plan
 from .compare import compare, records_to_table
+from .study.records import load_records
 
 # Heavier or optional modules load on first use (plotting pulls in pyplot).
 _LAZY = {"plotting", "export"}
@@ -61,6 +62,7 @@ __all__ = [
     "compare",
     "geometry",
     "list_scenarios",
+    "load_records",
     "load_scenario",
     "plan",
     "records_to_table",
