@@ -107,7 +107,7 @@ def test_plan_writes_reloadable_results_and_figures(tmp_path, capsys):
     out_dir = tmp_path / "plan"
     code, out, err = run(["plan", "quad", "--nodes", 150, "--seed", 0, "--alpha", 0.2, "--out", out_dir], capsys)
     assert code == EXIT_OK, err
-    assert "plan: cost" in out
+    assert "plan: planner cost" in out
     assert "IG-RRT*" in err  # progress on stderr
     res = PlanResult.load(out_dir / "plan.json")
     assert res.success and res.path is not None and res.alpha == 0.2

@@ -38,7 +38,7 @@ def _cmd_plan(run: _Run) -> int:
     run.list_written()
     if not res.success:
         return _plan_failed(res)
-    run.say(f"plan: cost {res.cost:.6g} (length {res.travel:.4g} m + {res.alpha:g} x information "
+    run.say(f"plan: planner cost {res.cost:.6g} (length {res.travel:.4g} m + {res.alpha:g} x information "
             f"{res.information:.4g} {res.info_unit}), {res.path.K} steps, first solution at node "
             f"{res.first_solution_iteration}")
     return EXIT_OK

@@ -60,9 +60,9 @@ def _cmd_smooth(run: _Run) -> int:
         gif, _ = animate_smoothing(sc, res.iterates, run.out / "smoothing.gif", dpi=min(a.dpi, 80))
         run.wrote(gif)
     run.list_written()
-    run.say(f"smooth: {_status_line(res)}; cost {res.initial_cost:.6g} -> {res.cost:.6g} "
-            f"(control {res.control:.4g} + {res.alpha:g} x information {res.information:.4g} nats), "
-            f"K = {res.path.K}, {res.nit} iterations")
+    run.say(f"smooth: {_status_line(res)}; steering cost at K = {res.path.K}: {res.initial_cost:.6g} -> "
+            f"{res.cost:.6g} (control {res.control:.4g} + {res.alpha:g} x information {res.information:.4g} nats), "
+            f"{res.nit} iterations")
     if _smooth_failed(res):
         return _fail(f"smoothing failed: {_status_line(res)}")
     return EXIT_OK
