@@ -232,47 +232,7 @@ def _psd_part(P: np.ndarray, rtol: float = 1e-9) -> tuple[np.ndarray, np.ndarray
     return fixed, asym | neg
 
 
-# ------------------------------------------------------------ certificates
-def _certificate_margins(scenario: Scenario, path: BeliefPath, lam: np.ndarray) -> np.ndarray:
-    """min(f_0(lam), f_1(lam)) - chi2 per transition and hazard, closed form:
-    f_s(lam) = -v^T P(s) v + 2 lam^T (A x(s) - b), v = A^T lam, at s = 0 (P_{k-1})
-    and s = 1 (P_{k-1} + W_k). For lam >= 0 a lower bound on min_s dist2 (Theorem 1)."""
-    K = path.K
-    out = np.empty((K, len(scenario.hazards)))
-    P0 = path.P[:-1]
-    P1 = P0 + path.transition_noise
-    for j, h in enumerate(scenario.hazards):
-        lj = lam[:, j, : h.n_faces]                                   # (K, f)
-        v = lj @ h.A                                                  # (K, d)
-        f0 = -np.einsum("kd,kde,ke->k", v, P0, v) + 2 * np.einsum("kf,kf->k", lj, path.x[:-1] @ h.A.T - h.b)
-        f1 = -np.einsum("kd,kde,ke->k", v, P1, v) + 2 * np.einsum("kf,kf->k", lj, path.x[1:] @ h.A.T - h.b)
-        out[:, j] = np.minimum(f0, f1) - scenario.chi2
-    return out
-
-
-def _with_certificates(report: VerificationReport, scenario: Scenario, path: BeliefPath,
-                       certificates) -> VerificationReport:
-    """The report with the closed-form certificate check added."""
-    lam = np.asarray(certificates, dtype=float)
-    F = max(h.n_faces for h in scenario.hazards)
-    if lam.ndim != 3 or lam.shape[:2] != (path.K, len(scenario.hazards)) or lam.shape[2] < F:
-        raise ValidationError("certificates", f"must be (K, J, F) = ({path.K}, {len(scenario.hazards)}, >= {F}), "
-                                              f"got {lam.shape}")
-    problems = list(report.problems)
-    if not np.all(np.isfinite(lam)) or np.any(lam < 0):
-        problems.append("certificates must be finite and >= 0 (Theorem 1 holds only for lam >= 0)")
-        cm = np.full((path.K, len(scenario.hazards)), np.nan)
-    else:
-        cm = _certificate_margins(scenario, path, lam)
-        for k, j in np.argwhere(~(cm >= 0))[:20]:
-            problems.append(f"transition {k + 1} vs {report.hazard_names[j]}: the certificate does not prove "
-                            f"clearance (margin {cm[k, j]:.3g})")
-    proven = not any("certificate" in p for p in problems)
-    return replace(report, safe=not problems, problems=problems, certificate_margins=cm,
-                   proof="certificates+sampling" if proven else "sampling")
-
-
-# ------------------------------------------------------------------ verify
+# ------------------------------------------------------------- arguments
 def _as_scenario(scenario: object) -> tuple[Scenario, bool]:
     """(scenario, given by name?) from a Scenario, a built-in name or a scenario file."""
     if isinstance(scenario, Scenario):
