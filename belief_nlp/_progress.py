@@ -14,8 +14,17 @@ __all__ = ["progress_bar"]
 log = logging.getLogger("belief_nlp.progress")
 
 
+def _in_notebook() -> bool:
+    """A running Jupyter kernel (not merely an imported ipykernel module)."""
+    ipython = sys.modules.get("IPython")
+    if ipython is None:
+        return False
+    shell = ipython.get_ipython() if hasattr(ipython, "get_ipython") else None
+    return shell is not None and "IPKernelApp" in getattr(shell, "config", {})
+
+
 def _interactive() -> bool:
-    if "ipykernel" in sys.modules:                 # Jupyter: tqdm.auto draws a widget
+    if _in_notebook():                             # Jupyter: tqdm.auto draws a widget
         return True
     stream = sys.stderr
     return bool(getattr(stream, "isatty", lambda: False)())
