@@ -221,15 +221,15 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
         candidates.append((model.cost(z)[0], it, z, f"iterate {it}"))
     candidates.sort(key=lambda c: (c[0], c[1] != -1))
     intended = candidates[0][3] if candidates else "the warm start"
-    answer, origin = problem.start, "the warm start"
-    answer_cost = problem.cost0
+    answer, origin, report = problem.start, "the warm start", None
     for cost, it, z, where in candidates:
         if not np.isfinite(cost):
             continue
         if cost > problem.cost0 * (1 + 1e-12) + 1e-15:
             break
-        if verify(sc, model.to_path(z), certificates=z.lam / model.data.sigma).safe:
-            answer, origin, answer_cost = z, where, cost
+        rep = verify(sc, model.to_path(z), certificates=z.lam / model.data.sigma)
+        if rep.safe:
+            answer, origin, report = z, where, rep
             break
         log.warning("%s failed independent verification; trying the next candidate", where)
     if status == "converged" and origin != intended:
@@ -240,7 +240,8 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
     meta = {"method": method_name, "solver": solver, "alpha": model.data.alpha}
     path = model.to_path(answer, meta=meta)
     lam_si = answer.lam / model.data.sigma
-    report = verify(sc, path, certificates=lam_si)
+    if report is None:                    # the warm start: verified here (the candidates were above)
+        report = verify(sc, path, certificates=lam_si)
     c, ctrl, info = model.cost(answer)
     iterates = None
     if problem.keep_iterates:
