@@ -56,12 +56,14 @@ def _base(name: str, description: str, dim: int) -> dict:
                 "start": {"x": [0.1, 0.5], "P": [[1e-9, 0.0], [0.0, 1e-9]]}, "noise": noise,
                 "domain": {"box": {"lower": [0.0, 0.0], "upper": [1.0, 1.0]}},
                 "target": {"box": {"lower": [0.8, 0.45], "upper": [0.9, 0.55]}},
-                "horizon": {"K": 20}, "planner": {"max_radius": 0.3}}
+                "horizon": {"K": 20},
+                # the smoother's per-step model, and a rewiring cap growing with alpha, as paper-multi
+                "planner": {"noise": "per_step", "max_radius": 0.3, "radius_per_alpha": 1.2}}
     return {"name": name, "description": description, "confidence": 0.9, "alpha": 0.1,
             "start": {"x": [0.1, 0.1, 0.1], "P": 1e-9}, "noise": {"W": 0.2e-3, "W_rate": 1e-3},
             "domain": {"box": {"lower": [0.0] * 3, "upper": [1.0] * 3}},
             "target": {"box": {"lower": [0.8] * 3, "upper": [0.9] * 3}},
-            "horizon": {"K": 10}, "planner": {"max_radius": 0.4}}
+            "horizon": {"K": 10}, "planner": {"noise": "per_step", "max_radius": 0.4, "radius_per_alpha": 1.2}}
 
 
 def _box_distance(c: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> float:

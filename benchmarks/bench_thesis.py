@@ -113,7 +113,7 @@ def figure(df, path: Path) -> None:
                                 textcoords="offset points", xytext=(4, 4))
         ax.set_xscale("log")
         ax.set_xlabel("total wall time per path (plan + warm start + smoothing), s")
-        ax.set_ylabel("cost at K = 20 / cost of the raw N = 5000 plan (median)")
+        ax.set_ylabel("cost / cost of raw N = 5000 plan (median)")
         ax.set_title(f"alpha = {alpha:g}")
         ax.axhline(1.0, color="grey", lw=0.5)
         ax.legend(fontsize=8)
@@ -139,7 +139,8 @@ def main() -> None:
     run = run_study(study, args.out, workers=args.workers)
     elapsed = time.perf_counter() - t0
     df = load_records(args.out)
-    df = df[df["seed"].isin(study.seeds)]
+    keys = {c.key for c in study.cases()}     # this study's cases only (older records may share DIR)
+    df = df[df["case_key"].isin(keys)]
     summary = summarise(df)
     figure(df, HERE / "thesis_cost_vs_time.png")
     write_report(args.out)
