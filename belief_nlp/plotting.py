@@ -306,8 +306,9 @@ def plot_belief_path(scenario, path, ax=None, *, prior_color="tab:blue", posteri
             handles += [Line2D([], [], color="black", marker="o", linestyle="none", label="start"),
                         Patch(facecolor=to_rgba("tab:green", 0.35), edgecolor="tab:green", label="target"),
                         Patch(facecolor="0.5", edgecolor="0.3", label="obstacle")]
-        # outside the map, so it never covers the path
-        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize=8)
+        # below the map, outside it, so it never covers the path (nor a neighbouring panel)
+        ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, fontsize=8,
+                  frameon=False)
     return fig, ax
 
 
