@@ -268,12 +268,9 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
     rho_s = parts[4]
     rho_e = parts[5]
 
-    def sym_var(imap_k: np.ndarray) -> ca.SX:
-        return _pick(z, imap_k)
-
     X = [ca.DM(D.x0)] + [xt[:, k] + _pick(z, B.x[k][:, None]) for k in range(1, K + 1)]
-    Q = [None, ca.DM(D.Q1)] + [sym_var(B.Q[k]) for k in range(2, K + 1)]
-    S = [None] + [sym_var(B.S[k]) for k in range(1, K + 1)]
+    Q = [None, ca.DM(D.Q1)] + [_pick(z, B.Q[k]) for k in range(2, K + 1)]
+    S = [None] + [_pick(z, B.S[k]) for k in range(1, K + 1)]
     Y = [None] + [Q[k] + S[k] for k in range(1, K + 1)]
     Yt = [None] + [(ca.DM(D.Q1) if k == 1 else Qt[k]) + St[k] for k in range(1, K + 1)]
     Lam = [[_pick(z, B.lam[0, j][:, None]) for j in range(J)]]      # transition 1 (the exact start end)

@@ -278,28 +278,13 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
 
 
 @lru_cache(maxsize=16)
-def _margin_parts(F: int, d: int):
-    """(x, P, lam, A, b) -> (quad(A^T lam, P), bilinear(lam, x, A, b)), mapped over
-    pairs when called on stacked columns (terms of :mod:`belief_nlp.model.terms`)."""
+def _margin_parts(F: int, d: int) -> ca.Function:
+    """(x, P, lam, A, b) -> (quad(A^T lam, P), bilinear(lam, x, A, b)) for one pair,
+    from the model's terms; ``.map(n)`` evaluates it over stacked columns."""
     x, P, lam = ca.SX.sym("x", d), ca.SX.sym("P", d, d), ca.SX.sym("lam", F)
     A, b = ca.SX.sym("A", F, d), ca.SX.sym("b", F)
-    f = ca.Function("margin_parts", [x, P, lam, A, b], [terms.quad(ca.mtimes(A.T, lam), P),
-                                                         terms.bilinear(lam, x, A, b)])
-    return _Mapped(f)
-
-
-class _Mapped:
-    """Calls ``f`` mapped over as many pairs as the inputs hold (cached per count)."""
-
-    def __init__(self, f):
-        self.f = f
-        self.maps: dict = {}
-
-    def __call__(self, x, *rest):
-        n = x.shape[1]
-        if n not in self.maps:
-            self.maps[n] = self.f.map(n)
-        return self.maps[n](x, *rest)
+    return ca.Function("margin_parts", [x, P, lam, A, b], [terms.quad(ca.mtimes(A.T, lam), P),
+                                                           terms.bilinear(lam, x, A, b)])
 
 
 def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | None = None,
@@ -331,8 +316,8 @@ def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | No
     t_min = np.zeros((K, J))
     for xe, Pe in ((x0, P0), (x1, P1)):
         Ps = np.concatenate(list(np.repeat(Pe, J, axis=0)), axis=1)
-        a, h = _margin_parts(F, xe.shape[1])(np.repeat(xe, J, axis=0).T, Ps, lam.reshape(K * J, F).T,
-                                             np.concatenate(list(A), axis=1), np.tile(hazards.b, (K, 1)).T)
+        a, h = _margin_parts(F, xe.shape[1]).map(K * J)(np.repeat(xe, J, axis=0).T, Ps, lam.reshape(K * J, F).T,
+                                                        np.concatenate(list(A), axis=1), np.tile(hazards.b, (K, 1)).T)
         a = a.full().reshape(K, J)
         beta = 0.5 * h.full().reshape(K, J)
         with np.errstate(divide="ignore", invalid="ignore"):
