@@ -44,7 +44,8 @@ def main() -> None:
         row = {"tool": tool, "horizon": a.horizon, "steps": a.steps, "median_step_s": float(np.median(st)),
                "max_step_s": float(st.max()), "median_iterations": float(np.median(it)),
                "max_iterations": int(it.max()), "fallback_steps": path.meta["fallback_steps"],
-               "safe": bool(bn.verify(sc, path).safe), "wall_s": time.perf_counter() - t0}
+               "safe": bool(bn.verify(sc, path).safe),
+               "reached_target": bool(sc.target.contains(path.x[-1])), "wall_s": time.perf_counter() - t0}
         rows.append(row)
         print(row)
     out = Path(__file__).parent / "results" / "mpc.json"

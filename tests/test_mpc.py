@@ -175,10 +175,3 @@ def test_opti_closed_loop_reaches_the_target_safely(multi):
     assert multi.target.contains(path.x[-1])
 
 
-def test_acados_formulation_builds():
-    pytest.importorskip("acados_template", reason="acados is not on PyPI: build it from source "
-                                                  "(docs/mpc.md) to run this test")
-    from belief_nlp.export.acados import acados_ocp
-
-    ocp = acados_ocp(export.BeliefMPC.build("paper-multi"), horizon=10)
-    assert ocp.constraints.lh.size == ocp.model.con_h_expr.shape[0]

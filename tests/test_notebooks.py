@@ -18,7 +18,7 @@ nbformat = pytest.importorskip("nbformat")
 
 NOTEBOOK_DIR = Path(__file__).resolve().parent.parent / "notebooks"
 NOTEBOOKS = sorted(NOTEBOOK_DIR.glob("*.ipynb"))
-EXPECTED = ("01_quickstart", "02_paper_experiment", "03_solver_comparison", "04_mpc_export")
+EXPECTED = ("01_quickstart", "02_paper_experiment", "03_solver_comparison", "04_mpc_export", "05_mpc_closed_loop")
 
 
 def _ids(paths):

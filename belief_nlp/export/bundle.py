@@ -66,6 +66,9 @@ from .functions import _slug
 
 __all__ = ["SafetyBundle", "TerminalBundle", "stage_bundle", "terminal_bundle", "scale_factors", "PAD_OFFSET"]
 
+#: Lower bound of the terminal rows, in units of sigma^2 (the squared form's scale):
+#: ~1e-5 sigma^2 = 2e-9 m^2 on paper-multi, a containment buffer of ~1e-7 m.
+TARGET_MARGIN = 1e-5
 #: Offset (m) of the padding face 0^T y <= PAD_OFFSET: any positive value is the whole space.
 PAD_OFFSET = 1.0
 _NORMS = ("l1", "l2")
@@ -297,8 +300,8 @@ def _make_terminal(base: TerminalBundle, units: str, soft: tuple | None) -> Term
     N, d = base.n_faces, base.d
     fn = _terminal_function(d, N, soft, "belief_target_terminal" + _suffix(units, soft))
     names = [f"target_face_{n}" for n in range(N)]
-    lb = [0.0] * N
     nominal = [(base.sigma if units == "SI" else 1.0) ** 2] * N
+    lb = [TARGET_MARGIN * nominal[0]] * N       # a hair inside, so rounding never lands outside
     if soft is not None:
         names += [f"target_face_{n}_slack" for n in range(N)]
         lb += [0.0] * N

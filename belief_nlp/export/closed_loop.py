@@ -7,8 +7,9 @@ belief (warm started with the shifted previous plan; the first solve from
 first step is applied to the plant (:meth:`BeliefMPC.apply`), and that
 transition is checked *exactly* (Theorem 1 by :mod:`belief_nlp.geometry`,
 target containment at the last step). A step that fails the check -- or a
-solve that fails -- is replaced by the next step of the last accepted plan,
-which was certified from the same belief (the usual MPC fallback);
+solve that fails -- is replaced by the next step of the last accepted plan
+(the usual MPC fallback) or else by staying put with exact certificates
+(:meth:`BeliefMPC.hold`), each checked exactly too;
 ``meta["fallback_steps"]`` counts them. The result is a
 :class:`~belief_nlp.BeliefPath` of the applied beliefs.
 """
@@ -26,13 +27,16 @@ from ..scenario import Scenario
 from .bundle import _scenario
 from .kit import BeliefMPC, reference_path
 
-__all__ = ["closed_loop", "TOOLS", "make_solver"]
+__all__ = ["closed_loop", "TOOLS", "make_solver", "PROX"]
+
+#: default proximal weight of the closed loops (docs/mpc.md, "Speed")
+PROX = 1.0
 
 
 def _opti(kit: BeliefMPC, horizon: int):
     from .opti import OptiMPC
 
-    return OptiMPC(kit, horizon)
+    return OptiMPC(kit, horizon, warm_duals=True)
 
 
 def _dompc(kit: BeliefMPC, horizon: int):
@@ -70,13 +74,15 @@ def _step_safe(kit: BeliefMPC, hazards, x, P, x1, P1, final: bool) -> bool:
 
 def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10, steps: int | None = None,
                 reference: BeliefPath | None = None, alpha: float | None = None, track: float = 10.0,
-                seed: int = 0, progress: Callable[[int, float], None] | None = None) -> BeliefPath:
+                seed: int = 0, progress: Callable[[int, float], None] | None = None,
+                prox: float = PROX) -> BeliefPath:
     """Run the belief MPC of ``tool`` for ``steps`` steps (default: the
     scenario's horizon K, else 20) with prediction ``horizon``.
 
     ``reference``: a safe path of ``steps`` transitions to track and to warm
     start from (default :func:`.reference_path`, an IG-RRT* plan made
-    feasible). Returns the closed-loop BeliefPath (SI) with ``meta``: tool,
+    feasible). ``prox``: weight of the proximal term toward the previous
+    plan (:class:`BeliefMPC`). Returns the closed-loop BeliefPath (SI) with ``meta``: tool,
     horizon, steps, step_times (s), iterations, fallback_steps. Raises
     SolverError when a step can be neither solved nor taken from the last plan.
     """
@@ -87,7 +93,7 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
     for name, v in (("steps", steps), ("horizon", horizon)):
         if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
             raise ValidationError(name, f"must be a positive integer, got {v!r}")
-    kit = BeliefMPC.build(sc, alpha=alpha, track=track)
+    kit = BeliefMPC.build(sc, alpha=alpha, track=track, prox=prox)
     ref = reference_path(sc, steps, seed=seed) if reference is None else reference
     if ref.K != steps:
         raise ValidationError("reference", f"must have {steps} transitions, got {ref.K}")
@@ -113,13 +119,18 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
             if _step_safe(kit, hazards, x, P, x1, P1, t == steps - 1):
                 step, tail = (x1, P1, S), [plan[:, k] for k in range(1, horizon)]
                 U[:, t:t + horizon] = plan
-        if step is None:
-            if not tail:
-                raise SolverError(f"{tool}: step {t + 1} could not be solved safely and no certified plan is left")
-            v = tail.pop(0)
-            x1, P1, S = kit.apply(x, P, v)
-            step, fallbacks = (x1, P1, S), fallbacks + 1
-            U[:, t] = v
+                if t + horizon < U.shape[1] and t + horizon < steps:   # a feasible stage for the shifted guess
+                    U[:, t + horizon] = kit.hold(kit.rollout(kit.state(x, P), plan)[:, -1], plan[:, -1])
+        if step is None:                           # the last plan's next step, else stay put -- checked exactly
+            hold = kit.hold(kit.state(x, P), tail[0] if tail else U[:, t])
+            for v in tail[:1] + [hold]:
+                x1, P1, S = kit.apply(x, P, v)
+                if _step_safe(kit, hazards, x, P, x1, P1, t == steps - 1):
+                    step, fallbacks, U[:, t] = (x1, P1, S), fallbacks + 1, v
+                    break
+            tail = tail[1:]
+            if step is None:
+                raise SolverError(f"{tool}: step {t + 1} could not be solved safely and no certified step is left")
         x, P, S = step
         xs.append(x)
         Ss.append(S)

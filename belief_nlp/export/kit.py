@@ -23,7 +23,9 @@ One stage of a receding-horizon belief MPC on a single integrator:
   alpha * information (nats) + track * ||x_{k+1} - r_{k+1}||^2 + a small
   proximal term ridge * ||lam' - lam'_ref||^2 toward the previous plan's
   certificates (their optimal set is flat in some directions; the
-  smoother's IPOPT method does the same, docs/numerics.md)
+  smoother's IPOPT method does the same, docs/numerics.md) + prox *
+  ||(u', l) - (u', l)_ref||^2 toward the previous plan's steps and sensing
+  (default 0; it convexifies the bilinear certificate rows, see docs/mpc.md)
   + the soft penalties, times ``active``.
 
 All of these are SX ``casadi.Function`` objects, so a do-mpc or acados model
@@ -77,6 +79,7 @@ class BeliefMPC:
     alpha: float
     track: float
     ridge: float
+    prox: float = 0.0
     step: ca.Function = field(init=False)
     rows: ca.Function = field(init=False)
     cost: ca.Function = field(init=False)
@@ -84,21 +87,23 @@ class BeliefMPC:
     @classmethod
     def build(cls, scenario: Scenario | str, alpha: float | None = None, track: float = 10.0,
               soft: tuple[float, str] | None = None, margin: float | None = None,
-              ridge: float = 1e-4) -> "BeliefMPC":
+              ridge: float = 1e-4, prox: float = 0.0) -> "BeliefMPC":
         """The layout for ``scenario``; ``soft=(weight, "l1"|"l2")`` softens the
-        margin and target rows; ``margin`` as in :func:`.stage_bundle`."""
+        margin and target rows; ``margin`` as in :func:`.stage_bundle`;
+        ``ridge`` and ``prox`` weight the proximal terms toward the previous
+        plan's certificates and steps/sensing (module doc)."""
         sc = _scenario(scenario)
         st = stage_bundle(sc, scaled=True, margin=margin, soft=soft)
         te = terminal_bundle(sc, scaled=True, soft=soft)
         alpha = float(sc.alpha if alpha is None else alpha)
         if not np.isfinite(alpha) or alpha < 0 or not np.isfinite(track) or track < 0:
             raise ValidationError("alpha", f"alpha and track must be finite and >= 0, got {alpha!r}, {track!r}")
-        return cls(sc, st, te, alpha, float(track), float(ridge))
+        return cls(sc, st, te, alpha, float(track), float(ridge), float(prox))
 
     def __post_init__(self) -> None:
         d = self.d
         s, v = ca.SX.sym("s", self.nx), ca.SX.sym("v", self.nu)
-        gate, ref = ca.SX.sym("gate", 2), ca.SX.sym("ref", d + self.stage.n_lam)
+        gate, ref = ca.SX.sym("gate", 2), ca.SX.sym("ref", self.n_ref)
         on, fin = gate[0], gate[0] * gate[1]
         p, pt = ca.SX.sym("p", self.stage.function.size1_in("p")), ca.SX.sym("p_t", self.terminal.function.size1_in("p"))
         x, P = self.unpack_state(s)
@@ -114,9 +119,11 @@ class BeliefMPC:
         self.rows = ca.Function("belief_rows", [s, v, gate, p, pt], [ca.vertcat(g_st, g_te)],
                                 ["s", "v", "gate", "p", "p_t"], ["g"])
         sig2 = self.sigma ** 2
+        ru, rl, rlam, _, _ = self.unpack_input(ref[d:])      # the previous plan's input
         ell = (sig2 * terms.control(x, x1) + self.alpha * terms.information_cov(terms.predict(P, self.W),
                                                                                self.sensing(lv))
-               + self.track * sig2 * ca.sumsqr(x1 - ref[:d]) + self.ridge * ca.sumsqr(lam - ref[d:]) + pen + gate[1] * pen_t)
+               + self.track * sig2 * ca.sumsqr(x1 - ref[:d]) + self.ridge * ca.sumsqr(lam - rlam)
+               + self.prox * ca.sumsqr(ca.vertcat(u - ru, lv - rl)) + pen + gate[1] * pen_t)
         ell = on * ell + (1 - on) * self.ridge * ca.sumsqr(v)     # past the end: keep the stage well posed
         self.cost = ca.Function("belief_stage_cost", [s, v, gate, ref], [ell], ["s", "v", "gate", "ref"], ["cost"])
 
@@ -137,6 +144,11 @@ class BeliefMPC:
     def tri(self) -> list[tuple[int, int]]:
         """Lower-triangle indices (i, j), column by column."""
         return [(i, j) for j in range(self.d) for i in range(j, self.d)]
+
+    @property
+    def n_ref(self) -> int:
+        """Size of the cost's ``ref`` input: next reference mean (d) and the previous plan's input (nu)."""
+        return self.d + self.nu
 
     @property
     def nx(self) -> int:
@@ -227,10 +239,40 @@ class BeliefMPC:
         rest = self.input(reference.x[-1], reference.x[-1], np.zeros((self.d, self.d)), np.zeros(self.stage.n_lam))
         return np.stack(U + [rest] * extra, 1)
 
+    def rollout(self, state: np.ndarray, V: np.ndarray) -> np.ndarray:
+        """States (nx, N+1) of the inputs V (nu, N) from ``state`` (the model's :attr:`step`)."""
+        S = [np.asarray(state, float)]
+        for k in range(V.shape[1]):
+            S.append(np.asarray(self.step(S[-1], V[:, k])).ravel())
+        return np.stack(S, 1)
+
+    def hold(self, state: np.ndarray, v_last: np.ndarray) -> np.ndarray:
+        """An input for one more stage after a plan that ends in ``state``: stay
+        put with the sensing of ``v_last`` and the exact certificates of that
+        transition (:func:`.certificate_warm_start`), so that a shifted plan
+        plus this stage is a feasible warm start. Returns ``v_last`` itself
+        when holding still is not clear."""
+        from ..errors import InfeasibleStartError
+
+        state = np.asarray(state, float)
+        x, P = state[:self.d] * self.sigma, np.zeros((self.d, self.d))
+        for n, (i, j) in enumerate(self.tri):
+            P[i, j] = P[j, i] = state[self.d + n] * self.sigma ** 2
+        v = np.array(v_last, float)
+        v[:self.d] = 0.0
+        _, _, S = self.apply(x, P, v)
+        try:
+            path = BeliefPath.from_sensing(np.array([x, x]), P, S[None], W=self.scenario.W, noise="per_step")
+            v[self.d + len(self.tri):self.d + len(self.tri) + self.stage.n_lam] = \
+                certificate_warm_start(self.scenario, path, self.stage)[0]
+        except (InfeasibleStartError, ValidationError, ValueError):
+            return np.array(v_last, float)
+        return v
+
     def references(self, reference: BeliefPath, guess: np.ndarray, t: int, horizon: int) -> np.ndarray:
-        """(d + J F, horizon) ``ref`` values of the solve at time t: the scaled
+        """(n_ref, horizon) ``ref`` values of the solve at time t: the scaled
         reference means of t+1..t+horizon (held at the last one) and the
-        certificates of ``guess`` (nu, horizon) for the proximal term."""
+        inputs ``guess`` (nu, horizon) -- the previous plan, shifted -- for the
+        proximal terms."""
         k = np.minimum(t + 1 + np.arange(horizon), reference.K)
-        lam = guess[self.d + len(self.tri):self.d + len(self.tri) + self.stage.n_lam]
-        return np.concatenate([reference.x[k].T / self.sigma, lam])
+        return np.concatenate([reference.x[k].T / self.sigma, np.asarray(guess, float)])

@@ -19,14 +19,30 @@ from .kit import BeliefMPC
 __all__ = ["OptiMPC", "ipopt_options"]
 
 
-def ipopt_options(**overrides) -> dict:
-    """IPOPT settings of the MPC adapters: the smoother's defaults (docs/numerics.md), quiet."""
+def ipopt_options(warm: bool = False, **overrides) -> dict:
+    """IPOPT settings of the MPC adapters: the smoother's defaults
+    (docs/numerics.md), quiet. ``warm=True``: the settings of a solve that
+    starts from the shifted previous solution, primal AND dual -- keep the
+    initial point (warm_start_init_point), a small barrier parameter and small
+    pushes away from the bounds, so IPOPT does not first walk back to the
+    central path."""
     from ..methods.ipopt import DEFAULT_IPOPT_OPTIONS
 
     opts = dict(DEFAULT_IPOPT_OPTIONS)
     opts.update(max_iter=500, tol=1e-6)
+    if warm:
+        opts.update(WARM_IPOPT_OPTIONS)
     opts.update(overrides)
     return opts
+
+
+#: IPOPT options of a warm-started MPC solve (see :func:`ipopt_options`)
+WARM_IPOPT_OPTIONS: dict = {
+    "warm_start_init_point": "yes", "mu_strategy": "monotone", "mu_init": 1e-6,
+    "warm_start_bound_push": 1e-8, "warm_start_bound_frac": 1e-8, "warm_start_slack_bound_push": 1e-8,
+    "warm_start_slack_bound_frac": 1e-8, "warm_start_mult_bound_push": 1e-8,
+    "bound_push": 1e-8, "bound_frac": 1e-8,
+}
 
 
 class OptiMPC:
@@ -40,10 +56,17 @@ class OptiMPC:
     Every stage gets ``kit.rows >= kit.lbg`` -- the certificate rows
     included. Pass your own ``opti`` to add constraints or cost terms
     (``extra_cost``) before :meth:`solve`.
+
+    ``warm_duals`` (default): a solve at time t right after one at t - 1
+    starts from that solve's multipliers shifted by one stage, with
+    :data:`WARM_IPOPT_OPTIONS` (the solver is rebuilt once, at the second
+    solve). With the shifted primal plan (:meth:`BeliefMPC.hold` appends a
+    feasible last stage) and a proximal weight ``kit.prox`` > 0 this cuts
+    IPOPT from hundreds of iterations to ~5-10 (docs/mpc.md, "Speed").
     """
 
     def __init__(self, kit: BeliefMPC, horizon: int, opti: ca.Opti | None = None, extra_cost=0,
-                 ipopt: dict | None = None) -> None:
+                 ipopt: dict | None = None, warm_duals: bool = True) -> None:
         self.kit, self.N = kit, int(horizon)
         o = self.opti = ca.Opti() if opti is None else opti
         N = self.N
@@ -51,7 +74,7 @@ class OptiMPC:
         # iterate's covariance is a Kalman posterior (positive definite; the
         # information term's log det is always defined)
         self.V = o.variable(kit.nu, N)
-        self.s0, self.gate, self.ref = o.parameter(kit.nx), o.parameter(2, N), o.parameter(kit.d + kit.stage.n_lam, N)
+        self.s0, self.gate, self.ref = o.parameter(kit.nx), o.parameter(2, N), o.parameter(kit.n_ref, N)
         self.p = o.parameter(kit.stage.function.size1_in("p"))
         self.p_t = o.parameter(kit.terminal.function.size1_in("p"))
         rows, cost = kit.rows.map(N), kit.cost.map(N)
@@ -61,9 +84,26 @@ class OptiMPC:
         o.minimize(ca.sum2(cost(self.X[:, :N], self.V, self.gate, self.ref)) + extra_cost)
         o.set_value(self.p, kit.stage.params())
         o.set_value(self.p_t, kit.terminal.params())
-        o.solver("ipopt", {"expand": True, "print_time": False, "detect_simple_bounds": True},
-                 ipopt_options(**(ipopt or {})))
+        self._ipopt = dict(ipopt or {})
+        self._warm, self.warm_duals = False, bool(warm_duals)
+        self._set_solver()
         self.last_stats: dict = {}
+        self._last: tuple[int, np.ndarray] | None = None    # (t, multipliers) of the last solve
+
+    def _set_solver(self) -> None:
+        self.opti.solver("ipopt", {"expand": True, "print_time": False, "detect_simple_bounds": True},
+                         ipopt_options(warm=self._warm, **self._ipopt))
+
+    def _warm_duals(self, t: int) -> None:
+        """Start from the previous solve's multipliers shifted by one stage
+        (the last stage's repeated); switch IPOPT to its warm settings once."""
+        if not self.warm_duals or self._last is None or self._last[0] != t - 1:
+            return
+        if not self._warm:
+            self._warm = True
+            self._set_solver()
+        L = self._last[1].reshape(-1, self.N, order="F")
+        self.opti.set_initial(self.opti.lam_g, np.hstack([L[:, 1:], L[:, -1:]]).ravel(order="F"))
 
     def solve(self, state: np.ndarray, t: int, steps: int, ref: np.ndarray, guess: np.ndarray) -> np.ndarray:
         """Solve from ``state`` at time t of a run of ``steps``; ``ref`` (d + J F, N)
@@ -74,6 +114,7 @@ class OptiMPC:
         o.set_value(self.gate, kit.gates(t, self.N, steps))
         o.set_value(self.ref, ref)
         o.set_initial(self.V, guess)
+        self._warm_duals(t)
         try:
             value = o.solve().value
             self.converged = True
@@ -86,4 +127,5 @@ class OptiMPC:
                 self.last_stats = o.stats()
                 raise SolverError(f"Opti/IPOPT failed ({self.last_stats.get('return_status')})") from exc
         self.last_stats = o.stats()
+        self._last = (t, np.asarray(value(o.lam_g), float).ravel())
         return np.asarray(value(self.V), float).reshape(kit.nu, self.N, order="F")
