@@ -21,7 +21,9 @@ Modules:
 * :mod:`.transitions` -- Theorem 1: :class:`TransitionMinimum`,
   :func:`transition_minimiser`, :func:`transition_clearance`,
   :func:`transition_clearances`, :func:`transitions_clear`,
-  :func:`transition_certificate`;
+  :func:`transition_bounds`, :func:`transition_certificate`;
+* :mod:`.bounds` -- the rigorous lower bound (Theorem-1 certificate value)
+  every acceptance decides on;
 * :mod:`.generic` -- the generic path (any dimension): Lemma 1 by face
   enumeration, bracketed minimisation over s;
 * :mod:`.planar` -- the planar path (d = 2, the planner's common case):
@@ -38,7 +40,7 @@ from .ellipse import (containment_margin, containment_margins, ellipse_certifica
 from .generic import _evaluate, _prepare  # noqa: F401 - the tests check the generic evaluation directly
 from .minimise import TransitionMinimum
 from .polytopes import PolytopeSet
-from .transitions import (transition_certificate, transition_clearance, transition_clearances,
+from .transitions import (transition_bounds, transition_certificate, transition_clearance, transition_clearances,
                           transition_minimiser, transitions_clear)
 
 __all__ = [
@@ -50,6 +52,7 @@ __all__ = [
     "transition_clearances",
     "transition_minimiser",
     "transitions_clear",
+    "transition_bounds",
     "containment_margin",
     "containment_margins",
     "ellipse_certificate",

@@ -66,7 +66,7 @@ def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
     g2 = np.zeros(N)
     lam = np.zeros((N, F)) if want_lam else None
     rows = np.arange(N)
-    for k, (idx_all, mask_all, check_all) in enumerate(ps.cand, start=1):
+    for k, (idx_all, mask_all, check_all, sign_all) in enumerate(ps.cand, start=1):
         idx = idx_all[midx]                                   # (N, C, k)
         mask = mask_all[midx]                                 # (N, C)
         n_ar = rows[:, None, None]
@@ -87,6 +87,11 @@ def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
             # single-plane candidates, which remain).
             c_mu = np.einsum("nck,nck->nc", cS, mu)
             ok &= (val >= 0) & (np.abs(c_mu - val) <= 1e-7 * (1.0 + np.abs(val)))
+        if np.any(sign_all):
+            # an extra subset of a degenerate face counts only with lam_S >= 0
+            # (its value equals the face's; its certificate must be valid)
+            lam_ok = np.all(mu <= 1e-9 * np.max(np.abs(mu), axis=-1, keepdims=True), axis=-1)
+            ok &= lam_ok | ~sign_all[midx]
         if np.any(check_all):
             GcS = G[n_ar[..., None], np.arange(F)[None, None, :, None], idx[:, :, None, :]]  # (N, C, F, k)
             resid = np.einsum("ncfk,nck->ncf", GcS, mu) - c[:, None, :]
@@ -164,6 +169,7 @@ def _generic_transitions(ps, x0, P0, x1, W, tol, max_iter, want_lam, threshold) 
         open_ &= best >= threshold
     active = np.nonzero(open_)[0]
     it = 0
+    limited = np.zeros(N, dtype=bool)
     if active.size:
         k = active.size
         pole = np.repeat(_left_pole(P0 + _P_FLOOR * np.eye(P0.shape[-1]), W), m)[active]
@@ -178,11 +184,19 @@ def _generic_transitions(ps, x0, P0, x1, W, tol, max_iter, want_lam, threshold) 
             pts = np.stack([s, ev.g.reshape(shape), ev.g1.reshape(shape), ev.g2.reshape(shape)])
             return pts, (np.swapaxes(ev.lam.reshape(2, sel.size, F), 1, 2) if want_lam else None)
 
-        it, ends, _, aux = _minimise_brackets(start, pole, active, evaluate, tol, max_iter, _decided(threshold), aux)
-        best[active] = np.minimum(ends[1, 0], ends[1, 1])
-        best_s[active] = np.where(ends[1, 1] < ends[1, 0], ends[0, 1], ends[0, 0])
+        it, ends, _, aux, lim = _minimise_brackets(start, pole, active, evaluate, tol, max_iter, _decided(threshold),
+                                                   aux)
+        limited[active] = lim
+        # convexity keeps the bracket's ends below [0, 1]'s; where rounding
+        # broke a slope's sign (needle covariances) the better end stays
+        it_best = np.minimum(ends[1, 0], ends[1, 1])
+        kept = it_best < best[active]
+        best[active] = np.where(kept, it_best, best[active])
+        best_s[active] = np.where(kept, np.where(ends[1, 1] < ends[1, 0], ends[0, 1], ends[0, 0]),
+                                  best_s[active])
         if want_lam:
-            lam[active] = _mix_certificates(ends[2, 0], ends[2, 1], aux[0], aux[1]).T
+            lam[active] = np.where(kept[:, None], _mix_certificates(ends[2, 0], ends[2, 1], aux[0], aux[1]).T,
+                                   lam[active])
     if want_lam:
         lam = np.maximum(lam, 0.0).reshape(n, m, F)
-    return TransitionMinimum(best.reshape(n, m), best_s.reshape(n, m), lam, it)
+    return TransitionMinimum(best.reshape(n, m), best_s.reshape(n, m), lam, it, limited=limited.reshape(n, m))

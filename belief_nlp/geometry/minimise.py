@@ -18,12 +18,24 @@ import numpy as np
 
 @dataclass
 class TransitionMinimum:
-    """Result of :func:`transition_minimiser` for n transitions x m polytopes."""
+    """Result of :func:`transition_minimiser` for n transitions x m polytopes.
 
-    dist2: np.ndarray        # (n, m) min over s in [0, 1] of the squared distance
+    ``dist2`` is the best value found, an upper bound on the minimum (a real
+    point of the polytope at a real s); ``lower`` is a rigorous lower bound
+    (the Theorem-1 certificate value, see :mod:`.bounds`), so the true
+    minimum lies in [lower, dist2]. ``decided``: with a threshold, the bounds
+    put the pair on one side of it (lower >= threshold: clear, dist2 <
+    threshold: collision); without one, the pair's minimisation finished
+    (it did not stop at the iteration limit).
+    """
+
+    dist2: np.ndarray        # (n, m) min over s in [0, 1] of the squared distance (an upper bound)
     s: np.ndarray | None     # (n, m) minimiser (None only on the planner's value-only path)
     lam: np.ndarray | None   # (n, m, F) common certificate (Theorem 1), padded faces; None unless asked
     iterations: int          # bracketing rounds (planar: 0 when closed forms and Newton guesses settle all)
+    lower: np.ndarray | None = None     # (n, m) rigorous lower bound on the minimum (None on value-only paths)
+    decided: np.ndarray | None = None   # (n, m) bool, see above
+    limited: np.ndarray | None = None   # (n, m) bool: stopped by the iteration limit, not by its bounds
 
 
 def _rational_step(d: np.ndarray, h: np.ndarray, tau: np.ndarray) -> np.ndarray:
@@ -61,11 +73,14 @@ def _minimise_brackets(ends: np.ndarray, pole: np.ndarray, payload: np.ndarray, 
     per-entry data, compressed here as entries retire. ``stop(pos, best, lb)``
     may retire entries early (threshold decisions, pruning); ``pos`` are the
     original entry indices. ``aux`` (2, r, k) rides along with the ends.
-    Returns (rounds, final ends, final LB, final aux), in the original order.
+    Returns (rounds, final ends, final LB, final aux, limited), in the
+    original order; ``limited`` marks the entries the iteration limit
+    stopped (neither converged nor retired by ``stop``).
     """
     k = ends.shape[2]
     out_ends = np.empty_like(ends)
     out_lb = np.empty(k)
+    out_limited = np.zeros(k, dtype=bool)
     out_aux = None if aux is None else np.empty_like(aux)
     pos = np.arange(k)
     it = 0
@@ -78,6 +93,7 @@ def _minimise_brackets(ends: np.ndarray, pole: np.ndarray, payload: np.ndarray, 
         if stop is not None:
             done |= stop(pos, best, lb)
         if it >= max_iter:
+            out_limited[pos[~done]] = True
             done[:] = True
         if done.any():
             p = pos[done]
@@ -87,7 +103,7 @@ def _minimise_brackets(ends: np.ndarray, pole: np.ndarray, payload: np.ndarray, 
                 out_aux[:, :, p] = aux[:, :, done]
             keep = ~done
             if not keep.any():
-                return it, out_ends, out_lb, out_aux
+                return it, out_ends, out_lb, out_aux, out_limited
             pos, ends, pole, t = pos[keep], ends[:, :, keep], pole[keep], t[keep]
             payload = payload[..., keep]
             if aux is not None:

@@ -224,6 +224,7 @@ def _planar_transitions(ps: PolytopeSet, x0: np.ndarray, P0: np.ndarray, x1: np.
         cand &= (lb0 < threshold) & (Uv >= threshold)
     idx = np.flatnonzero(cand)
     iterations = 0
+    limited = np.zeros((n, m), dtype=bool)
     U_flat = U.reshape(-1)
     it_ends = it_aux = pair = item_v = None
     if idx.size:
@@ -260,12 +261,13 @@ def _planar_transitions(ps: PolytopeSet, x0: np.ndarray, P0: np.ndarray, x1: np.
             g, d, h, qx, qy = _vertex_curve(s, *data)
             return np.stack([s, g, d, h]), (np.stack([qx, qy], axis=1) if want_lam else None)
 
-        iterations, it_ends, _, it_aux = _minimise_brackets(start, pole, payload, evaluate, tol, max_iter,
-                                                            _decided(threshold), aux)
+        iterations, it_ends, _, it_aux, lim = _minimise_brackets(start, pole, payload, evaluate, tol, max_iter,
+                                                                 _decided(threshold), aux)
         np.minimum.at(U_flat, pair, np.minimum(it_ends[1, 0], it_ends[1, 1]))
+        limited.reshape(-1)[pair[lim]] = True
 
     if not (want_s or want_lam):
-        return TransitionMinimum(U, None, None, iterations)
+        return TransitionMinimum(U, None, None, iterations, limited=limited)
     # ---- which feature attains each pair's minimum (first one on ties)
     e_poly = pl.e_poly
     e_arg = np.minimum.reduceat(np.where(e_val <= e_min[:, e_poly], np.arange(E), E), pl.e_start, axis=1)
@@ -291,7 +293,15 @@ def _planar_transitions(ps: PolytopeSet, x0: np.ndarray, P0: np.ndarray, x1: np.
         ni, mi = np.nonzero(vert_wins)
         va = v_arg[ni, mi]
         end = v_end[ni, mi].astype(int)
-        _put_vertex_lam(lam, pl, ni, mi, va, zx[end, ni, va], zy[end, ni, va])
+        z = np.stack([zx[end, ni, va], zy[end, ni, va]])
+        # a curve whose interior minimum its tangent bound settled without
+        # iterating (threshold mode): the end certificates mixed so that the
+        # value is flat in s, >= that tangent bound (iterated ones follow)
+        lo_d, hi_d = V1[0, ni, va], V1[1, ni, va]
+        mixed = _mix_certificates(lo_d, hi_d, np.stack([zx[0, ni, va], zy[0, ni, va]]),
+                                  np.stack([zx[1, ni, va], zy[1, ni, va]]))
+        z = np.where((lo_d < 0) & (hi_d > 0), mixed, z)
+        _put_vertex_lam(lam, pl, ni, mi, va, z[0], z[1])
         if won is not None and won.size:
             # s* is only bracketed: mix the end certificates so that the
             # mixture's value is flat in s and >= the tangent lower bound
@@ -300,7 +310,7 @@ def _planar_transitions(ps: PolytopeSet, x0: np.ndarray, P0: np.ndarray, x1: np.
             lam[pn, pm] = 0.0
             _put_vertex_lam(lam, pl, pn, pm, item_v[won], z[0], z[1])
         lam = np.maximum(lam, 0.0)
-    return TransitionMinimum(U, s_out, lam, iterations)
+    return TransitionMinimum(U, s_out, lam, iterations, limited=limited)
 
 
 def _put_vertex_lam(lam, pl: _Planar, ni, mi, va, zx, zy) -> None:

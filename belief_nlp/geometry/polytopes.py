@@ -19,48 +19,61 @@ import numpy as np
 
 from ._numeric import _P_FLOOR
 
-def _face_sets(A: np.ndarray, b: np.ndarray, vertices: np.ndarray | None) -> list[list[tuple[tuple[int, ...], bool]]]:
+def _face_sets(A: np.ndarray, b: np.ndarray, vertices: np.ndarray | None) -> list[list[tuple[tuple[int, ...], bool, bool]]]:
     """Active sets S (|S| = 1..d) whose faces can hold the nearest point.
 
-    Returns, per size k, pairs (S, needs_check). For bounded polytopes only
-    genuine faces are kept (the face with active set S is the set of vertices
-    on all planes of S; it is genuine when those vertices span dimension
-    d - |S|), and vertex sets (|S| = d) need no feasibility test, which makes
-    them immune to rounding. Without vertices (unbounded polytopes, raw A, b)
-    every independent subset is kept and checked (correct, just slower).
+    Returns, per size k, triples (S, needs_check, needs_sign). For bounded
+    polytopes only genuine faces are kept (the face with active set S is the
+    set of vertices on all planes of S; it is genuine when those vertices
+    span dimension d - |S|), and vertex sets (|S| = d) need no feasibility
+    test, which makes them immune to rounding. Without vertices (unbounded
+    polytopes, raw A, b) every independent subset is kept and checked
+    (correct, just slower).
 
-    When more than |S| planes pass through one face (a vertex of a pyramid,
-    or nearly coplanar facets of a hull), one active set per face suffices,
-    and it must be the best-conditioned one: a set containing two nearly
-    parallel planes locates the face badly, and the candidate value then
-    misses the true distance (seen: 2e-4 relative on a hull with a 1e-5
-    sliver).
+    When more than |S| planes pass through one face (a vertex where four
+    facets of a triangulated hull meet, a pyramid's apex, nearly coplanar
+    facets), any independent k of them locate the face, so the value is
+    the same, but the Lemma-1 certificate lam_S = -G_SS^-1 c_S is >= 0 only
+    for the k-subsets whose normal cone holds the direction to the query
+    (one exists, by Caratheodory). Such faces keep every independent subset,
+    best-conditioned first (a set with two nearly parallel planes locates
+    the face badly: 2e-4 relative seen on a hull with a 1e-5 sliver), each
+    with ``needs_sign``: a subset counts only where its certificate is >= 0,
+    so the winning candidate always carries a valid one.
     """
     f, d = A.shape
-    out: list[list[tuple[tuple[int, ...], bool]]] = [[] for _ in range(d + 1)]
+    out: list[list[tuple[tuple[int, ...], bool, bool]]] = [[] for _ in range(d + 1)]
     scale = 1.0 + float(np.max(np.abs(b)))
     An = A / np.linalg.norm(A, axis=1, keepdims=True)
     for k in range(1, min(d, f) + 1):
-        best: dict[tuple[int, ...], tuple[float, tuple[int, ...]]] = {}
+        faces: dict[tuple[int, ...], list[tuple[float, tuple[int, ...]]]] = {}
         for S in itertools.combinations(range(f), k):
             AS = A[list(S)]
             if np.linalg.matrix_rank(AS, tol=1e-10) < k:
                 continue
             if vertices is None:
-                out[k].append((S, True))
+                out[k].append((S, True, False))
                 continue
             on = np.all(np.abs(vertices @ AS.T - b[list(S)]) <= 1e-9 * scale, axis=1)
             Vs = vertices[on]
             if Vs.shape[0] < d - k + 1:
                 continue
             rank = np.linalg.matrix_rank(Vs[1:] - Vs[0], tol=1e-9 * scale) if Vs.shape[0] > 1 else 0
-            if rank != d - k:
+            # rank > d - k only by rounding: vertices a hair apart (a hull's
+            # near-duplicate points) that all lie on the planes within the
+            # tolerance; the face is genuine, just thickened (dropping it lost
+            # a vertex: 30 % overestimates on a near-flat hull)
+            if rank < d - k:
                 continue
             key = tuple(np.flatnonzero(on))
             sigma = float(np.linalg.svd(An[list(S)], compute_uv=False)[-1])
-            if key not in best or sigma > best[key][0]:
-                best[key] = (sigma, S)
-        out[k].extend((S, k < d) for _, S in best.values())
+            faces.setdefault(key, []).append((sigma, S))
+        for subsets in faces.values():
+            subsets.sort(key=lambda t: -t[0])
+            if k == 1 or len(subsets) == 1:
+                out[k].append((subsets[0][1], k < d, False))
+            else:
+                out[k].extend((S, k < d, True) for _, S in subsets)
     return out
 
 
@@ -218,7 +231,7 @@ class PolytopeSet:
     A: np.ndarray            # (m, F, d)
     b: np.ndarray            # (m, F)
     n_faces: np.ndarray      # (m,)
-    cand: tuple              # per k = 1..d: (idx (m, C_k, k), valid (m, C_k), check (m, C_k))
+    cand: tuple              # per k = 1..d: (idx (m, C_k, k), valid, check, sign (m, C_k)); see _face_sets
     names: tuple[str, ...]
     scale: float
     planar: _Planar | None = None
@@ -258,17 +271,19 @@ class PolytopeSet:
             idx = np.zeros((m, C, k), dtype=int)
             mask = np.zeros((m, C), dtype=bool)
             check = np.zeros((m, C), dtype=bool)
+            sign = np.zeros((m, C), dtype=bool)
             for i, s in enumerate(sets):
-                for j, (S, needs_check) in enumerate(s[k]):
+                for j, (S, needs_check, needs_sign) in enumerate(s[k]):
                     idx[i, j] = S
                     mask[i, j] = True
                     check[i, j] = needs_check
+                    sign[i, j] = needs_sign
                 # padding repeats a harmless index set (masked anyway)
                 if s[k]:
                     idx[i, len(s[k]):] = s[k][0][0]
                 else:
                     idx[i, :] = np.arange(k) % max(nf[i], 1)
-            cand.append((idx, mask, check))
+            cand.append((idx, mask, check, sign))
         scale = float(max(1.0, np.max(np.abs(b_pad))))
         planar = _Planar.build([(A, b) for A, b, _ in items]) if d == 2 else None
         return cls(A_pad, b_pad, nf, tuple(cand), tuple(names), scale, planar)

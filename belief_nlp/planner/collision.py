@@ -28,7 +28,11 @@ Theorem 1 as a 1-D convex minimisation over s).
     s proves the transition unsafe.
 
 chi2' = chi2 (1 + safety_margin) in every layer, including the exact call;
-witnesses use chi2' (1 - 1e-9) so that rounding cannot fake one.
+witnesses use chi2' (1 - 1e-9) so that rounding cannot fake one. The exact
+call accepts a pair only on its rigorous lower bound
+(:func:`belief_nlp.geometry.transition_bounds`); a pair whose bounds do not
+decide it (iteration limit, or a minimum within rounding of chi2') counts as
+a collision and in ``stats["undecided_pairs"]``.
 """
 
 from __future__ import annotations
@@ -100,6 +104,8 @@ def _segment_polygon_dist2(x0, x1, P, V, E) -> np.ndarray:
 class CollisionChecker:
     """Clearance decisions against ``scenario.hazards`` (obstacles and walls)."""
 
+    exact_max_iter = 60     # rounds of the exact minimiser before a pair is left undecided
+
     def __init__(self, scenario, safety_margin: float):
         self.dim = scenario.dim
         self.chi2 = float(scenario.chi2)
@@ -128,7 +134,8 @@ class CollisionChecker:
         target = scenario.target
         self.tA, self.tb = target.A, target.b
         self.stats = {"edges": 0, "edges_blocked_by_walls": 0, "edges_certified": 0, "edges_witnessed": 0,
-                      "edges_exact": 0, "exact_calls": 0, "pairs_exact": 0, "ellipses": 0, "ellipses_exact": 0}
+                      "edges_exact": 0, "exact_calls": 0, "pairs_exact": 0, "undecided_pairs": 0,
+                      "ellipses": 0, "ellipses_exact": 0}
 
     # ------------------------------------------------------------------ walls
     def _walls_clear(self, x0, x1, P0, W_e) -> np.ndarray:
@@ -228,8 +235,10 @@ class CollisionChecker:
             st["exact_calls"] += 1
             st["edges_exact"] += rest.size
             st["pairs_exact"] += rest.size * m
-            ok = geometry.transitions_clear(x0[rest], P0[rest], x1[rest], W_e[rest], self.ps, self.chi2,
-                                            margin=self.thr - self.chi2)
+            lower, upper = geometry.transition_bounds(x0[rest], P0[rest], x1[rest], W_e[rest], self.ps, self.thr,
+                                                      max_iter=self.exact_max_iter)
+            ok = lower >= self.thr                                    # proven clear
+            st["undecided_pairs"] += int(np.count_nonzero(~ok & (upper >= self.thr)))
             out[rest] = ok.all(axis=1)
         return out
 

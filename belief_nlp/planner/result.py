@@ -132,7 +132,9 @@ class PlanResult:
         ``pruned`` / ``revived`` (branch-and-bound), ``goal_nodes``;
         ``edges_checked``: candidate edges given an exact collision decision;
         ``collision_checks``: (edge, obstacle) pairs that needed the iterative
-        Theorem-1 minimiser (the rest were decided in closed form); the
+        Theorem-1 minimiser (the rest were decided in closed form);
+        ``undecided_pairs``: those of them whose rigorous bounds decided
+        nothing (rejected as collisions, never passed); the
         ``collision_*`` entries break the decisions down by layer.
     timings : seconds: ``sample``, ``candidates``, ``collision``, ``rewire``,
         ``prune``, ``verify``, ``total`` (wall) and ``cpu`` (process time).

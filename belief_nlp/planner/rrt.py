@@ -247,6 +247,7 @@ class IGRRTStar:
         # The counts the issue names, under plain names.
         stats["edges_checked"] = checker.stats["edges"]
         stats["collision_checks"] = checker.stats["pairs_exact"]
+        stats["undecided_pairs"] = checker.stats["undecided_pairs"]
         timings["tree"] = time.perf_counter() - t_start
         return self._finish(tree, best_node, np.asarray(history), first_solution, stop_reason, stats, timings,
                             t_start, cpu_start)

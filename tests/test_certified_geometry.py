@@ -1,0 +1,251 @@
+"""Certified safety geometry: the rigorous lower bound of the transition oracle.
+
+Every pair's minimum over s of dist2(x(s), P(s)) must lie in [lower, upper]
+(``transition_bounds`` / ``TransitionMinimum.lower`` and ``.dist2``), checked
+against an independent oracle (dense sampling of s, 2001 samples, refined by
+a ternary search; point-to-polygon / point-to-triangle distances in whitened
+coordinates, tests/test_geometry.py), on random 2-D and 3-D cases with tiny
+and needle covariances and pairs that touch; acceptance (``transitions_clear``,
+the planner) only on the lower bound; an iteration limit leaves pairs
+undecided, never passed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial import ConvexHull
+
+import belief_nlp as bn
+from belief_nlp import geometry as geo
+from belief_nlp.planner.collision import CollisionChecker
+from belief_nlp.polytope import Polytope
+from test_geometry import (CHI2, FAST, hull_polytope, oracle_transition_min, points2, points3, polytope_3d,
+                           random_spd, random_transitions, rel)
+
+SAMPLES = 2001
+
+
+def hard_transitions(rng: np.random.Generator, n: int, d: int, poly: Polytope):
+    """Random transitions, two thirds of them with hard data: tiny start
+    covariances (1e-9), needle covariances (eigenvalue ratio 1e8) for P_0
+    and W, and mean paths through a vertex of the polytope (they touch)."""
+    x0, P0, x1, W = random_transitions(rng, n, d, p=(1e-6, 1e-1))
+    k = n // 6
+    P0[:k] = 1e-9 * np.eye(d) if d == 2 else random_spd(rng, k, d, 1e-10, 1e-9)
+    needle = np.full((k, d), 1e-10)
+    needle[:, 0] = 1e-2
+    Q, _ = np.linalg.qr(rng.normal(size=(k, d, d)))
+    P0[k:2 * k] = np.einsum("nij,nj,nkj->nik", Q, needle, Q)
+    W[2 * k:3 * k] = np.einsum("nij,nj,nkj->nik", Q, 0.1 * needle, Q)
+    # through a vertex: x(t) = v for some t in (0, 1)
+    v = poly.vertices[rng.integers(0, poly.vertices.shape[0], k)]
+    u = rng.normal(size=(k, d))
+    t = rng.uniform(0.1, 0.9, size=(k, 1))
+    x0[3 * k:4 * k] = v - t * u
+    x1[3 * k:4 * k] = v + (1 - t) * u
+    return x0, P0, x1, W
+
+
+def _condition(P0, W):
+    ev = np.linalg.eigvalsh(np.concatenate([P0, P0 + W]))
+    return np.max((ev[:, -1] / np.maximum(ev[:, 0], 1e-300)).reshape(2, -1), axis=0)
+
+
+def assert_bracketed(poly: Polytope, x0, P0, x1, W, tight: float | None = 1e-6):
+    """lower <= true minimum <= upper for every pair, and (when ``tight``)
+    the lower bound close to the minimum: within ``tight`` relative for
+    every pair whose covariances have condition <= 1e6, and within 1e-8 for
+    most pairs. A needle (condition 1e8) only has to be bracketed: the
+    rounding bound of its certificate value grows with the condition (1e-5
+    relative; 1e-3 at a sliver's sharp vertex, whose certificate is large),
+    and in 3-D the generic face solves of G_SS = A_S P A_S^T square it and
+    may lose the minimum (the bounds stay valid; a threshold between them
+    leaves the pair undecided)."""
+    tm = geo.transition_minimiser(x0, P0, x1, W, [poly])
+    lower, upper = tm.lower[:, 0], tm.dist2[:, 0]
+    sampled, refined = oracle_transition_min(poly, x0, P0, x1, W, samples=SAMPLES)
+    # the oracle's own rounding (whitening a needle) is ~1e-12 relative
+    assert np.all(lower <= sampled + 1e-9 * (1 + sampled)), np.max((lower - sampled) / (1 + sampled))
+    assert np.all(lower <= refined + 1e-9 * (1 + refined))
+    assert np.all(upper >= refined - 1e-7 * (1 + refined)), np.max((refined - upper) / (1 + refined))
+    assert np.all(lower >= 0) and np.all(lower <= upper)
+    assert not tm.limited.any()
+    if tight is not None:
+        gap = rel(lower, refined)
+        assert np.all(gap[_condition(P0, W) <= 1e6] < tight), np.max(gap[_condition(P0, W) <= 1e6])
+        assert np.median(gap) < 1e-8
+    return tm
+
+
+@settings(FAST, max_examples=60)
+@given(pts=points2, seed=st.integers(0, 2**32 - 1))
+def test_bounds_bracket_the_minimum_2d(pts, seed):
+    """30 transitions per random polygon (1800 cases), two thirds of them hard."""
+    poly = hull_polytope(pts)
+    rng = np.random.default_rng(seed)
+    assert_bracketed(poly, *hard_transitions(rng, 30, 2, poly))
+
+
+@settings(FAST, max_examples=20)
+@given(pts=points3, seed=st.integers(0, 2**32 - 1), box=st.booleans())
+def test_bounds_bracket_the_minimum_3d(pts, seed, box):
+    """12 transitions per box / random hull in 3-D (240 cases), half hard."""
+    rng = np.random.default_rng(seed)
+    poly = polytope_3d(pts, rng, box)
+    assert_bracketed(poly, *hard_transitions(rng, 12, 3, poly))
+
+
+def test_seeded_bounds_2d_and_3d():
+    """Seeded numpy companion of the hypothesis tests: 900 planar pairs on
+    the paper's obstacles and 150 generic pairs on random hulls."""
+    rng = np.random.default_rng(7)
+    for poly in bn.load_scenario("paper-multi").obstacles:
+        assert_bracketed(poly, *hard_transitions(rng, 150, 2, poly))
+    for _ in range(5):
+        pts = rng.uniform(-1, 1, (9, 3))
+        poly = Polytope.from_vertices(pts[ConvexHull(pts).vertices])
+        assert_bracketed(poly, *hard_transitions(rng, 30, 3, poly))
+
+
+def test_near_flat_hull_regression():
+    """The hull with a near-duplicate vertex (1.8e-9 apart) that made the
+    generic path drop a vertex and overestimate the minimum by 30 %: exact
+    again, and the lower bound never above the truth."""
+    pts = np.array([[0, 0, .5], [1.82080317e-9, .5, .5], [0, .5, .5], [.5, 0, .5], [.5, .5, 0]])
+    poly = Polytope.from_vertices(pts[ConvexHull(pts).vertices])
+    rng = np.random.default_rng(0)
+    x0, P0, x1, W = random_transitions(rng, 10, 3, p=(1e-5, 1e-1))
+    tm = assert_bracketed(poly, x0, P0, x1, W)
+    _, refined = oracle_transition_min(poly, x0, P0, x1, W)
+    assert np.all(rel(tm.dist2[:, 0], refined) < 1e-7)
+
+
+def test_degenerate_vertices_carry_valid_certificates():
+    """Vertices where more than d facets meet (a square pyramid's apex):
+    the certificate of the winning face is >= 0 and proves the minimum."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [.5, .5, 1.0]])
+    apex = Polytope.from_vertices(V)
+    rng = np.random.default_rng(3)
+    x0 = np.array([.5, .5, 1.5]) + rng.normal(scale=0.1, size=(50, 3))
+    x1 = x0 + rng.normal(scale=0.05, size=(50, 3))
+    P0 = random_spd(rng, 50, 3, 1e-4, 1e-2)
+    W = random_spd(rng, 50, 3, 1e-6, 1e-3)
+    tm = assert_bracketed(apex, x0, P0, x1, W)
+    assert np.all(rel(tm.lower[:, 0], tm.dist2[:, 0]) < 1e-8)
+
+
+def test_threshold_at_the_minimum_is_never_passed_on_the_upper_bound():
+    """Pairs scaled so that their minimum is exactly the threshold (they
+    touch it): clear only where the lower bound proves it, and then the
+    oracle agrees up to rounding."""
+    rng = np.random.default_rng(11)
+    sc = bn.load_scenario("paper-multi")
+    for poly in sc.obstacles[:3]:
+        x0, P0, x1, W = random_transitions(rng, 200, 2, p=(1e-6, 1e-2))
+        _, refined = oracle_transition_min(poly, x0, P0, x1, W)
+        ok = refined > 1e-6
+        c = (refined / CHI2)[ok]                  # dist2 scales as 1/c when P0 and W do
+        x0, x1, P0, W = x0[ok], x1[ok], P0[ok] * c[:, None, None], W[ok] * c[:, None, None]
+        lower, upper = geo.transition_bounds(x0, P0, x1, W, [poly], CHI2)
+        clear = geo.transitions_clear(x0, P0, x1, W, [poly], CHI2)[:, 0]
+        assert np.array_equal(clear, lower[:, 0] >= CHI2)
+        _, truth = oracle_transition_min(poly, x0, P0, x1, W)
+        assert np.all(truth[clear] >= CHI2 * (1 - 1e-9))
+        assert np.all(lower[:, 0] <= truth * (1 + 1e-9))
+
+
+def iteration_limited_case():
+    """Random hulls in 3-D with thresholds just below each pair's minimum
+    (clear by 1e-4 relative): the generic bracketing needs a few rounds."""
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(-1, 1, (10, 3))
+    poly = Polytope.from_vertices(pts[ConvexHull(pts).vertices])
+    x0, P0, x1, W = random_transitions(rng, 300, 3, p=(1e-4, 1e-2), w=(1e-4, 1e-2))
+    full = geo.transition_minimiser(x0, P0, x1, W, [poly])
+    return poly, x0, P0, x1, W, full
+
+
+@pytest.mark.parametrize("max_iter", [0, 1])
+def test_iteration_limit_leaves_pairs_undecided(max_iter):
+    poly, x0, P0, x1, W, full = iteration_limited_case()
+    undecided_seen = 0
+    for margin in (1e-4, 1e-2):
+        thr = float(np.median(full.dist2)) * (1 - margin)
+        tm = geo.transition_minimiser(x0, P0, x1, W, [poly], max_iter=max_iter, threshold=thr)
+        clear = geo.transitions_clear(x0, P0, x1, W, [poly], thr, max_iter=max_iter)
+        und = ~tm.decided
+        undecided_seen += int(und.sum())
+        assert not np.any(clear[und])                               # never passed
+        assert np.array_equal(clear, tm.lower >= thr)
+        assert np.all(clear <= (full.lower >= thr))                 # limited acceptances are real ones
+        assert np.all(tm.lower <= full.dist2 * (1 + 1e-9))          # still rigorous
+        assert np.all(tm.dist2 >= full.lower * (1 - 1e-9))
+    assert undecided_seen > 0
+    # without a threshold a limited pair is marked undecided too
+    tm = geo.transition_minimiser(x0, P0, x1, W, [poly], max_iter=max_iter)
+    assert np.array_equal(tm.decided, ~tm.limited) and tm.limited.any()
+    assert np.all(tm.lower <= full.dist2 * (1 + 1e-9))
+
+
+def test_planner_check_rejects_undecided_pairs(monkeypatch):
+    """The planner's exact layer accepts on the lower bound only: pairs the
+    bounds cannot decide are collisions and are counted."""
+    sc = bn.load_scenario("cube3d")
+    checker = CollisionChecker(sc, 1e-6)
+    rng = np.random.default_rng(2)
+    n = 400
+    x0 = rng.uniform(0, 1, (n, 3))
+    x1 = x0 + rng.normal(scale=0.1, size=(n, 3))
+    P0 = random_spd(rng, n, 3, 1e-5, 1e-3)
+    W = np.broadcast_to(sc.W, (n, 3, 3)).copy()
+    ok = checker.transitions_clear(x0, P0, x1, W)
+    assert checker.stats["pairs_exact"] > 0 and checker.stats["undecided_pairs"] == 0
+
+    calls = []
+    bounds = geo.transition_bounds
+
+    def undecided(*args, **kwargs):                 # bounds that straddle every threshold
+        lower, upper = bounds(*args, **kwargs)
+        calls.append(lower.size)
+        return np.zeros_like(lower), np.full_like(upper, np.inf)
+
+    monkeypatch.setattr(geo, "transition_bounds", undecided)
+    checker2 = CollisionChecker(sc, 1e-6)
+    ok2 = checker2.transitions_clear(x0, P0, x1, W)
+    assert sum(calls) == checker2.stats["pairs_exact"] == checker2.stats["undecided_pairs"] > 0
+    assert np.all(ok2 <= ok) and ok2.sum() < ok.sum()
+
+
+def test_planner_with_forced_iteration_limit(monkeypatch):
+    """plan() with the exact minimiser given no rounds: undecided pairs
+    are counted in the result's stats and the path is still verified safe."""
+    monkeypatch.setattr(CollisionChecker, "exact_max_iter", 0)
+    sc = bn.load_scenario("cube3d")
+    res = bn.plan(sc, n_nodes=300, seed=0)
+    assert res.stats["undecided_pairs"] == res.stats["collision_undecided_pairs"]
+    assert res.stats["undecided_pairs"] > 0
+    if res.path is not None:
+        assert bn.verify(sc, res.path).safe
+
+
+@pytest.mark.parametrize("name", ["paper-multi", "cube3d"])
+def test_planner_unchanged_where_nothing_is_undecided(name, monkeypatch):
+    """With nothing undecided, deciding on the lower bound plans exactly what
+    deciding on the minimum found (the previous rule) planned."""
+    sc = bn.load_scenario(name)
+    certified = bn.plan(sc, n_nodes=300, seed=0)
+    assert certified.stats["undecided_pairs"] == 0
+
+    bounds = geo.transition_bounds
+
+    def upper_only(*args, **kwargs):
+        _, upper = bounds(*args, **kwargs)
+        return upper, upper
+
+    monkeypatch.setattr(geo, "transition_bounds", upper_only)
+    before = bn.plan(sc, n_nodes=300, seed=0)
+    assert certified.cost == before.cost
+    assert np.array_equal(certified.path.x, before.path.x)
