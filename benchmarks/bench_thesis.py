@@ -81,6 +81,7 @@ def summarise(df) -> dict:
 
 def figure(df, path: Path) -> None:
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -112,6 +113,7 @@ def figure(df, path: Path) -> None:
                     ax.annotate(lab.split("+")[0].replace(" raw", ""), (x, y), fontsize=7,
                                 textcoords="offset points", xytext=(4, 4))
         ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())   # no crowded minor labels
         ax.set_xlabel("total wall time per path (plan + warm start + smoothing), s")
         ax.set_ylabel("cost / cost of raw N = 5000 plan (median)")
         ax.set_title(f"alpha = {alpha:g}")

@@ -34,7 +34,7 @@ import sys
 from typing import Sequence
 
 from ..errors import BeliefNLPError, ValidationError
-from . import compare, demo, methods, mpc, plan, scenarios, smooth
+from . import compare, demo, methods, mpc, plan, scenarios, smooth, study
 from .common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, FAILED_STATUSES, PROG, _one_line,
                      _Run, _setup_logging, smoothing_methods)  # noqa: F401 - smoothing_methods: public
 from .demo import DEMO_MAX_RADIUS  # noqa: F401 - public, as before the split
@@ -44,7 +44,7 @@ from .parser import _Parser, _UsageError
 __all__ = ["main", "build_parser", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_INTERNAL", "FAILED_STATUSES"]
 
 #: The subcommands, in the order ``belief-nlp --help`` lists them.
-_COMMANDS = (scenarios, plan, smooth, compare, methods, demo, mpc)
+_COMMANDS = (scenarios, plan, smooth, compare, methods, demo, study, mpc)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -16,7 +16,8 @@ costs     planner_cost (the planner's own objective), warm_start_cost, cost, con
 timings   plan_time, warm_start_time, build_time, solve_time, smooth_time, wall_time (plan + warm start +
           smoothing: the path's total), trace (JSON [[t, best cost], ...] from t = 0 at planning)
 solver    solver, stats (JSON of SmoothResult.stats)
-safety    mc_runs, mc_failures, mc_rate, mc_ci_low, mc_ci_high, nominal_rate (Monte-Carlo metric)
+safety    mc_runs, mc_failures, mc_rate, mc_ci_low, mc_ci_high, nominal_rate, mc_collisions, mc_exits,
+          mc_misses (Monte-Carlo metric: runs that hit an obstacle / left the domain / missed the target)
 library   belief_nlp_version, solver_version, versions (JSON), case (JSON: reproduces the case), finished_at
 """
 
@@ -108,7 +109,8 @@ def _base_row(case: Case, variant: MethodVariant) -> dict:
         "information": math.nan, "iterations": 0, "plan_time": math.nan, "warm_start_time": math.nan,
         "build_time": math.nan, "solve_time": math.nan, "smooth_time": math.nan, "wall_time": math.nan,
         "trace": "[]", "solver": "", "stats": "{}", "mc_runs": 0, "mc_failures": None, "mc_rate": math.nan,
-        "mc_ci_low": math.nan, "mc_ci_high": math.nan, "nominal_rate": math.nan,
+        "mc_ci_low": math.nan, "mc_ci_high": math.nan, "nominal_rate": math.nan, "mc_collisions": None,
+        "mc_exits": None, "mc_misses": None,
         "belief_nlp_version": v["belief-nlp"], "solver_version": "", "versions": canonical_json(v),
         "case": canonical_json(case.to_dict()), "finished_at": None})
     return row
@@ -149,7 +151,8 @@ def _montecarlo(row: dict, sc, path, case: Case, index: int) -> None:
     seed = int(case.key, 16) % (2**63) + index
     mc = simulate(sc, path, runs=case.limits.montecarlo, substeps=case.limits.montecarlo_substeps, seed=seed)
     row.update(mc_runs=mc.runs, mc_failures=mc.failures, mc_rate=mc.rate, mc_ci_low=mc.ci_low,
-               mc_ci_high=mc.ci_high, nominal_rate=mc.nominal_rate)
+               mc_ci_high=mc.ci_high, nominal_rate=mc.nominal_rate, mc_collisions=mc.collisions,
+               mc_exits=mc.exits, mc_misses=mc.misses)
 
 
 def _smooth_row(row: dict, sc, ws, case: Case, variant: MethodVariant, t_before: float) -> Any:
