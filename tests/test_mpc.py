@@ -166,7 +166,6 @@ def test_layout_reproduces_a_reference_and_its_rows_hold(multi, ref):
             np.testing.assert_allclose(s[:2] * kit.sigma, ref.x[-1], atol=1e-12)
 
 
-@pytest.mark.slow
 def test_opti_closed_loop_reaches_the_target_safely(multi):
     path = export.closed_loop(multi, "opti", horizon=10, steps=20)
     assert path.K == 20

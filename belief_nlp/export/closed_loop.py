@@ -88,6 +88,8 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
     """
     from ..geometry import PolytopeSet
 
+    if tool not in TOOLS:
+        raise ValidationError("tool", f"must be one of {sorted(TOOLS)}, got {tool!r}")
     sc = _scenario(scenario)
     steps = int(sc.K or 20) if steps is None else steps
     for name, v in (("steps", steps), ("horizon", horizon)):
