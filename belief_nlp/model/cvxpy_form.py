@@ -123,10 +123,9 @@ class CompiledProblem:
 
         B, D = self.layout.blocks, self.layout.data
         K, d = D.K, D.d
-        sel = np.zeros(((K + 1) * d, B.n))
-        rows = np.arange(d, (K + 1) * d)
-        sel[rows, B.x[1:].ravel()] = 1.0
-        dx = cp.reshape(sp.csr_matrix(sel) @ self.z, (K + 1, d), order="C")
+        rows = np.arange(d, (K + 1) * d)                       # row 0 (x0) has no step variable
+        sel = sp.csr_matrix((np.ones(rows.size), (rows, B.x[1:].ravel())), shape=((K + 1) * d, B.n))
+        dx = cp.reshape(sel @ self.z, (K + 1, d), order="C")
         return D.sigma * (self.x_ref + dx)
 
     def with_constraints(self, constraints: list) -> "CompiledProblem":
