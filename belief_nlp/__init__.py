@@ -14,8 +14,8 @@ from .path import BeliefPath
 from .polytope import Polytope
 from .scenario import Scenario, list_scenarios, load_scenario, save_scenario, scenario_from_dict
 from .verify import VerificationReport, verify
-from .smoother import (STATUSES, IterationRecord, Method, Option, Outcome, SmoothResult, SmoothingProblem,
-                       WarmStart, available_methods, get_method, smooth, warm_start)
+from .smoother import (DEFAULT_METHOD, STATUSES, IterationRecord, Method, Option, Outcome, SmoothResult,
+                       SmoothingProblem, WarmStart, available_methods, get_method, smooth, warm_start)
 from .smoother import register as register_method
 from .methods.ccp import ccp_subproblem
 from .planner import IGRRTStar, PlanResult, plan
@@ -37,6 +37,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "BeliefNLPError",
+    "DEFAULT_METHOD",
     "Method",
     "Option",
     "Outcome",

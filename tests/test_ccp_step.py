@@ -38,9 +38,9 @@ def test_ccp_subproblem_is_a_dpp_problem_ready_to_solve(small):
 def test_every_iteration_uses_the_one_compiled_problem(small):
     sc, path = small
     MEMORY.clear()
-    res = bn.smooth(sc, path, alpha=1.0, max_iter=4)
+    res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=4)
     assert res.stats["compile"] == "compiled"
-    again = bn.smooth(sc, path, alpha=1.0, max_iter=4)
+    again = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=4)
     assert again.stats["compile"] == "memory"
     assert again.cost == pytest.approx(res.cost, rel=1e-10)
 
@@ -48,7 +48,7 @@ def test_every_iteration_uses_the_one_compiled_problem(small):
 def test_a_users_constraint_is_honoured_for_the_whole_run(small):
     """All means inside a box that the unconstrained answer leaves."""
     sc, path = small
-    free = bn.smooth(sc, path, alpha=1.0, max_iter=30)
+    free = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=30)
     x_max = float(np.max(free.path.x[:, 0]))
     box = 0.5 * (x_max + float(np.max(path.x[:, 0]))) if x_max < np.max(path.x[:, 0]) else x_max - 0.01
     # the warm start satisfies it (its means are the path's); the free answer does not
@@ -63,13 +63,13 @@ def test_a_users_constraint_is_honoured_for_the_whole_run(small):
         def cons(step):
             return [step.means()[1:-1, 1] >= limit_y]
 
-        res = bn.smooth(sc, path, alpha=1.0, max_iter=30, constraints=cons)
+        res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=30, constraints=cons)
         assert np.min(res.path.x[1:-1, 1]) >= limit_y - 1e-7
     else:
         def cons(step):
             return [step.means()[:, 0] <= limit]
 
-        res = bn.smooth(sc, path, alpha=1.0, max_iter=30, constraints=cons)
+        res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=30, constraints=cons)
         assert np.max(res.path.x[:, 0]) <= limit + 1e-7
     assert res.safe and res.cost <= res.initial_cost
     assert res.cost >= free.cost * (1 - 1e-6)          # a constrained optimum is no better
@@ -82,7 +82,7 @@ def test_hook_sees_each_step_with_parameters_set(small):
     def hook(step, it):
         seen.append((it, step.problem.is_dpp(), all(p.value is not None for p in step.problem.parameters())))
 
-    res = bn.smooth(sc, path, alpha=1.0, max_iter=3, hook=hook)
+    res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=3, hook=hook)
     assert [s[0] for s in seen] == list(range(1, res.nit + 1)) and all(s[1] and s[2] for s in seen)
 
 
@@ -92,17 +92,17 @@ def test_solvers_are_checked_before_any_work(small):
     assert "CLARABEL" in usable and "OSQP" not in usable
     for bad in ("FOO", "OSQP"):
         with pytest.raises(ValidationError) as exc:
-            bn.smooth(sc, path, solver=bad)
+            bn.smooth(sc, path, method="ccp", solver=bad)
         assert exc.value.field == "solver" and "CLARABEL" in str(exc.value)
     with pytest.raises(ValidationError) as exc:
-        bn.smooth(sc, path, solver_options={"no_such_setting": 1})
+        bn.smooth(sc, path, method="ccp", solver_options={"no_such_setting": 1})
     assert exc.value.field == "solver_options"
 
 
 @pytest.mark.skipif("SCS" not in usable_solvers(), reason="SCS is not installed")
 def test_another_installed_solver_runs_end_to_end():
     sc, path = paper_multi_path_pair(steps_per_segment=1)        # K = 5
-    res = bn.smooth(sc, path, alpha=1.0, max_iter=2, solver="SCS",
+    res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=2, solver="SCS",
                     solver_options={"eps_abs": 1e-7, "eps_rel": 1e-7})
     assert res.solver == "SCS" and res.safe and res.cost <= res.initial_cost
     assert res.nit >= 1 and res.history[1].solver_status.startswith("optimal")
@@ -112,19 +112,19 @@ def test_disk_cache_round_trip_and_refuses_foreign_entries(small, tmp_path):
     sc, path = small
     MEMORY.clear()
     cache = tmp_path / "cache"
-    first = bn.smooth(sc, path, alpha=0.1, max_iter=2, cache_dir=cache)
+    first = bn.smooth(sc, path, method="ccp", alpha=0.1, max_iter=2, cache_dir=cache)
     assert first.stats["compile"] == "compiled"
     entries = list(cache.glob("*.ccp.pkl"))
     assert len(entries) == 1 and oct(entries[0].stat().st_mode & 0o777) == "0o600"
     MEMORY.clear()
-    second = bn.smooth(sc, path, alpha=0.1, max_iter=2, cache_dir=cache)
+    second = bn.smooth(sc, path, method="ccp", alpha=0.1, max_iter=2, cache_dir=cache)
     assert second.stats["compile"] == "disk" and second.cost == pytest.approx(first.cost, rel=1e-9)
     # tampered: one byte changed -> ignored and rebuilt
     blob = bytearray(entries[0].read_bytes())
     blob[-10] ^= 0xFF
     entries[0].write_bytes(bytes(blob))
     MEMORY.clear()
-    third = bn.smooth(sc, path, alpha=0.1, max_iter=2, cache_dir=cache)
+    third = bn.smooth(sc, path, method="ccp", alpha=0.1, max_iter=2, cache_dir=cache)
     assert third.stats["compile"] == "compiled"
     # a pickle written by someone else (not signed with this folder's key) is never loaded
     model = BeliefModel(sc, first.path.K, 0.1)

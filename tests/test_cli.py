@@ -139,8 +139,8 @@ def test_plan_failure_exits_3_with_the_reason(tmp_path, capsys):
 
 # ------------------------------------------------------------------ smooth
 def test_smooth_from_a_path_file(tmp_path, hand_path_file, capsys):
-    code, out, err = run(["smooth", "paper-multi", "--path", hand_path_file, "--max-iter", 3, "--gif",
-                          "--format", "npz", "--out", tmp_path], capsys)
+    code, out, err = run(["smooth", "paper-multi", "--path", hand_path_file, "--method", "ccp", "--max-iter", 3,
+                          "--gif", "--format", "npz", "--out", tmp_path], capsys)
     assert code == EXIT_OK, err
     assert "max_iter" in out and "CCP" in err
     res = bn.SmoothResult.load(tmp_path / "smooth.json")
@@ -160,6 +160,24 @@ def test_smooth_from_a_path_file(tmp_path, hand_path_file, capsys):
     assert code == EXIT_OK, err
     again = bn.SmoothResult.load(tmp_path / "again" / "smooth.json")
     assert again.path.K == 24 and again.alpha == 1.0
+
+
+def test_smooth_defaults_to_auto(tmp_path, hand_path_file, capsys):
+    """Without --method the CLI smooths with bn.DEFAULT_METHOD, auto: IPOPT,
+    CCP as its fallback; the result, the figures and the GIF say which ran."""
+    from belief_nlp.cli import build_parser
+
+    assert build_parser().parse_args(["smooth", "paper-multi"]).method == bn.DEFAULT_METHOD == "auto"
+    code, out, err = run(["smooth", "paper-multi", "--path", hand_path_file, "-K", 10, "--gif", "--out", tmp_path],
+                         capsys)
+    assert code == EXIT_OK, err
+    res = bn.SmoothResult.load(tmp_path / "smooth.json")
+    assert res.method.startswith("auto") and res.stats["stages"][0] == "ipopt"
+    assert res.safe and res.cost <= res.initial_cost and res.path.K == 10
+    assert f"smooth: {res.method}: {res.status}" in out
+    assert_image(tmp_path / "smooth.png")
+    assert_image(tmp_path / "smooth_cost.png")
+    assert gif_frames(tmp_path / "smoothing.gif") >= 1
 
 
 def test_smooth_plans_first_without_a_path(tmp_path, capsys):
@@ -222,17 +240,24 @@ def _console_script() -> list[str]:
     return [found]
 
 
-def test_demo_quick_through_the_console_script(tmp_path):
-    """The README's first command, in small: figures, GIFs and reloadable results."""
+@pytest.mark.parametrize("method", [None, "ccp"], ids=["default-auto", "ccp"])
+def test_demo_quick_through_the_console_script(tmp_path, method):
+    """The README's first command, in small: figures, GIFs and reloadable
+    results; by default smoothed by auto (run to its own limit), and with
+    --method ccp by the paper's CCP (--quick: 3 iterations)."""
     from belief_nlp.planner import PlanResult
 
     out_dir = tmp_path / "demo out"
     env = dict(os.environ, MPLBACKEND="Agg")
-    proc = subprocess.run([*_console_script(), "demo", "--quick", "--out", str(out_dir)], capture_output=True,
-                          text=True, env=env, timeout=600, cwd=tmp_path)
+    extra = [] if method is None else ["--method", method]
+    proc = subprocess.run([*_console_script(), "demo", "--quick", *extra, "--out", str(out_dir)],
+                          capture_output=True, text=True, env=env, timeout=600, cwd=tmp_path)
     assert "Traceback" not in proc.stderr, proc.stderr
     summary = json.loads((out_dir / "summary.json").read_text())
     assert [r["alpha"] for r in summary["runs"]] == [0.1, 1.0]
+    assert summary["method"] == (method or "auto")
+    # ccp: the paper's cap, 3 at --quick; auto: its own limit (it runs until converged)
+    assert summary["max_iter"] == (3 if method == "ccp" else bn.get_method("auto").max_iter)
     for name in ("fig2_planner_paths.png", "fig3_smoothed_paths.png", "fig4_cost_history.png"):
         assert_image(out_dir / name)
     if proc.returncode == EXIT_FAILED:
@@ -247,20 +272,44 @@ def test_demo_quick_through_the_console_script(tmp_path):
         plan = PlanResult.load(out_dir / f"plan_{tag}.json")
         res = bn.SmoothResult.load(out_dir / f"smooth_{tag}.json")
         assert res.path == bn.BeliefPath.load(out_dir / f"smoothed_path_{tag}.json")
-        assert res.nit <= 3 and res.cost <= res.initial_cost and res.alpha == r["alpha"]
+        assert res.nit <= summary["max_iter"] and res.cost <= res.initial_cost and res.alpha == r["alpha"]
         assert plan.success and r["plan_cost"] == plan.cost
-        assert gif_frames(out_dir / f"smoothing_{tag}.gif") == len(r["cost_history"])
+        assert res.method == r["smooth_method"] and f"{res.method} {res.status} after {res.nit}" in proc.stdout
+        assert gif_frames(out_dir / f"smoothing_{tag}.gif") == r["gif_frames"] >= 1
+        if method == "ccp":
+            assert res.method == "ccp" and res.nit <= 3
+            assert gif_frames(out_dir / f"smoothing_{tag}.gif") == len(r["cost_history"])
+        else:
+            assert res.method.startswith("auto")
     assert "demo finished" in proc.stdout
 
 
 def test_demo_in_process_single_alpha(tmp_path, hand_path_file, capsys):
-    code, out, err = run(["demo", "--quick", "--alphas", 0.1, "--no-gif", "--nodes", 200, "-q", "--out",
-                          tmp_path], capsys)
+    code, out, err = run(["demo", "--quick", "--method", "ccp", "--alphas", 0.1, "--no-gif", "--nodes", 200, "-q",
+                          "--out", tmp_path], capsys)
     assert code == EXIT_OK or (code == EXIT_FAILED and "planning failed" in err), err
     assert sorted(p.name for p in tmp_path.glob("*.gif")) == []
     summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["nodes"] == 200 and summary["max_iter"] == 3
+    assert summary["nodes"] == 200 and summary["max_iter"] == 3 and summary["method"] == "ccp"
     assert_image(tmp_path / "fig4_cost_history.png")
+
+
+@pytest.mark.parametrize("argv, max_iter", [
+    ([], None), (["--quick"], None), (["--converged"], None), (["--max-iter", "7"], 7),
+    (["--method", "ipopt", "--quick"], None),
+    (["--method", "ccp"], 15), (["--method", "ccp", "--quick"], 3), (["--method", "ccp", "--converged"], 200),
+    (["--method", "ccp", "--quick", "--converged"], 200), (["--method", "ccp", "--quick", "--max-iter", "9"], 9),
+])
+def test_demo_iteration_limit(argv, max_iter):
+    """The demo smooths with auto by default, to the method's own limit (None);
+    the paper's 15 CCP iterations (--quick 3, --converged 200) apply to
+    --method ccp; --max-iter always wins."""
+    from belief_nlp.cli import build_parser
+    from belief_nlp.cli.demo import _demo_max_iter
+
+    args = build_parser().parse_args(["demo", *argv])
+    assert args.method == (argv[argv.index("--method") + 1] if "--method" in argv else "auto")
+    assert _demo_max_iter(args) == max_iter
 
 
 # -------------------------------------------------------------- bad input
@@ -300,6 +349,7 @@ BAD_INPUTS = [
     (["scenarios", "nope"], "unknown scenario"),
     (["scenarios", "quad", "--export", "{tmp}/quad.yaml"], ".toml or .json"),
     (["demo", "--alphas", "x"], "--alphas"),
+    (["demo", "--method", "newton"], "invalid choice"),
     (["demo", "--scenario", "{tmp}/missing.json"], "no such scenario file"),
 ]
 

@@ -23,7 +23,7 @@ def _toy_registered():
 
 def test_the_registry_lists_the_builtins_and_the_toy_method():
     names = bn.available_methods()
-    assert names[:3] == ["ccp", "ipopt", "auto"] and "sensing_trim" in names
+    assert names[:3] == ["auto", "ccp", "ipopt"] and "sensing_trim" in names      # the default first
     assert bn.get_method("ccp").max_iter == 50 and bn.get_method("ipopt").max_iter == 3000
 
 

@@ -17,6 +17,28 @@ def test_smooth_of_a_default_plan_works(name, alpha):
     res = bn.smooth(name, planned, max_iter=5, **kw)       # names and PlanResults are accepted as they are
     assert res.safe and res.cost <= res.initial_cost
     assert bn.verify(name, res).safe
+    assert res.method.startswith("auto")                    # no method named: the default, auto
+
+
+def test_auto_is_the_default_method_and_listed_first():
+    assert bn.DEFAULT_METHOD == bn.smoother.DEFAULT_METHOD == "auto"
+    names = bn.available_methods()
+    assert names[0] == "auto" and "ccp" in names and "ipopt" in names
+    assert len(set(names)) == len(names)
+    import inspect
+
+    assert inspect.signature(bn.smooth).parameters["method"].default == "auto"
+
+
+def test_smooth_without_a_method_runs_auto():
+    from conftest import paper_multi_path_pair
+
+    sc, path = paper_multi_path_pair(steps_per_segment=1)        # K = 5
+    res = bn.smooth(sc, path, alpha=1.0)
+    assert res.method.startswith("auto") and res.method in ("auto:ipopt", "auto:ccp", "auto:ipopt+ccp")
+    assert res.stats["stages"][0] == "ipopt"
+    assert res.safe and res.cost <= res.initial_cost
+    assert bn.verify(sc, res).safe
 
 
 def test_paper_multi_plans_with_the_smoothers_noise_model_and_a_radius_for_its_alpha():

@@ -85,5 +85,5 @@ def test_summary_names_the_cost_and_the_proof(run, capfd):
     sc, res = run
     text = res.summary()
     assert "steering cost at K = 10" in text and "certificates+sampling" in text and res.method in text
-    r = bn.smooth(sc, res.path, max_iter=2, verbose=True)
+    r = bn.smooth(sc, res.path, method="ccp", max_iter=2, verbose=True)
     assert "CCP iteration 1" in capfd.readouterr().err and r.nit == 2

@@ -27,8 +27,9 @@ def small():
     ({"max_iter": 0}, "max_iter"), ({"max_iter": 2.5}, "max_iter"), ({"max_iter": True}, "max_iter"),
     ({"K": 10**9}, "K"), ({"K": "20"}, "K"),
     ({"solver": "FOO"}, "solver"), ({"solver": 3}, "solver"),
-    ({"solver_options": "x"}, "solver_options"), ({"solver_options": {"no_such_setting": 1}}, "solver_options"),
-    ({"monotone_tol": float("nan")}, "monotone_tol"), ({"rho": -1.0}, "rho"),
+    ({"solver_options": "x"}, "solver_options"),
+    ({"solver_options": {"no_such_setting": 1}, "method": "ccp"}, "solver_options"),
+    ({"monotone_tol": float("nan"), "method": "ccp"}, "monotone_tol"), ({"rho": -1.0, "method": "ccp"}, "rho"),
     ({"max_ter": 3}, "max_ter"), ({"callback": 3}, "callback"),
     ({"method": "newton"}, "method"), ({"method": 3}, "method"),
     ({"formulation": "nope", "method": "ipopt"}, "formulation"),
@@ -78,7 +79,7 @@ def test_a_nonsense_solver_answer_is_a_failed_subproblem(small, monkeypatch, fau
         return "optimal", bad, t, n
 
     monkeypatch.setattr(ccp_method, "_solve", lambda *a: ccp_method._checked(*lying(*a), a[0]))
-    res = bn.smooth(sc, path, alpha=1.0, max_iter=6)
+    res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=6)
     assert res.status in ("solver_failed", "infeasible_iterate") and not res.success
     assert res.safe and res.cost <= res.initial_cost
     assert bn.verify(sc, res.path, certificates=res.certificates).proof == "certificates+sampling"

@@ -27,14 +27,14 @@ def _cube3d_path():
 @pytest.fixture(scope="module")
 def paper_run():
     sc, path = paper_multi_path_pair()
-    res = bn.smooth(sc, path, alpha=1.0, max_iter=40, keep_iterates=True)
+    res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=40, keep_iterates=True)
     return sc, path, res
 
 
 @pytest.fixture(scope="module")
 def cube_run():
     sc, path = _cube3d_path()
-    return sc, path, bn.smooth(sc, path, max_iter=40, keep_iterates=True)
+    return sc, path, bn.smooth(sc, path, method="ccp", max_iter=40, keep_iterates=True)
 
 
 @pytest.mark.parametrize("run", ["paper_run", "cube_run"])
@@ -160,7 +160,7 @@ def test_path_through_an_obstacle_is_refused_with_the_transition_named():
 
 def test_forced_solver_failure_returns_best_feasible_iterate():
     sc, path = paper_multi_path_pair(steps_per_segment=2)
-    res = bn.smooth(sc, path, max_iter=10, _fail_at=3)
+    res = bn.smooth(sc, path, method="ccp", max_iter=10, _fail_at=3)
     assert not res.success
     assert res.status == "solver_failed"
     assert "iteration 3" in res.message

@@ -4,7 +4,7 @@ Minimum-sensing path planning in Gaussian belief space:
 
   scenarios  list the built-in scenarios, show one, export it or draw it
   plan       run IG-RRT* and write the plan (JSON/NPZ) and its figures
-  smooth     smooth a path (CCP or IPOPT) read from a file, or plan first
+  smooth     smooth a path (auto, CCP or IPOPT) read from a file, or plan first
   compare    smooth the same path with several methods and tabulate them
   methods    list the registered smoothing methods and their options
   demo       the paper's experiment on paper-multi: Figs. 2-4 and GIFs

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Callable
 
 from ..errors import ValidationError
+from ..smoother.registry import DEFAULT_METHOD  # noqa: F401 - the CLI's --method default
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERNAL = 0, 2, 3, 1
 
@@ -27,7 +28,9 @@ log = logging.getLogger("belief_nlp.cli")
 
 
 # ------------------------------------------------------- smoothing methods
-#: The paper's method: the default of ``smooth --method`` and the one the demo runs.
+#: The paper's method, the convex-concave procedure: the one whose iterates are
+#: all feasible and whose iteration count the paper's 15 (demo) refers to.
+#: The default of ``--method`` is :data:`DEFAULT_METHOD` ("auto").
 PAPER_METHOD = "ccp"
 
 
@@ -40,9 +43,10 @@ def smoothing_methods() -> tuple[str, ...]:
 
 
 def iterates_feasible(method: str) -> bool:
-    """Whether every iterate a method reports is a feasible path: CCP's are
-    (a rejected step is not part of the run); IPOPT's interior-point iterates
-    become feasible only as it converges."""
+    """Whether every iterate a method reports is a feasible path: plain CCP's
+    are (a rejected step is not part of the run); IPOPT's interior-point
+    iterates become feasible only as it converges, and an auto run
+    ("auto:ipopt", "auto:ccp", ...) starts with IPOPT's."""
     return method == PAPER_METHOD
 
 

@@ -18,10 +18,10 @@ def add_parser(sub) -> None:
     methods = smoothing_methods()
     cp = sub.add_parser(
         "compare", help="smooth one path with several methods and tabulate cost, time, status",
-        description=f"Smooth the same path with each method (default: {' and '.join(methods)}), from one "
-                    "shared warm start, and compare. Writes OUT/compare.json (one record per method: status, "
-                    "cost, iterations, times, verification, history and path), OUT/compare_path_<method>.json|npz "
-                    "(BeliefPath.load), OUT/compare.txt (the table, also printed), "
+        description=f"Smooth the same path with each method (default: every registered one, "
+                    f"{', '.join(methods)}), from one shared warm start, and compare. Writes OUT/compare.json "
+                    "(one record per method: status, cost, iterations, times, verification, history and path), "
+                    "OUT/compare_path_<method>.json|npz (BeliefPath.load), OUT/compare.txt (the table, also printed), "
                     "OUT/compare.png (the smoothed paths) and OUT/compare_cost.png (cost per iteration). "
                     "Exit code 3 when every method failed.",
         epilog=f"Example:\n  belief-nlp compare paper-multi --path out/plan.json --methods {' '.join(methods)}")
@@ -95,11 +95,11 @@ def _compare_figures(run: _Run, sc, path, records: list[dict]) -> None:
         else:
             ax.set_title(f"{method}: {rec.get('status')}", fontsize=9)
         hist = rec.get("history")
-        if hist:  # CCP: accepted iterates; IPOPT: every iterate (feasible only near the end)
+        if hist:  # CCP: accepted iterates; IPOPT and auto: every iterate (feasible only near the end)
             histories[method] = _plotted_costs(method, ((h.get("cost"), h.get("accepted", True)) for h in hist))
     _save_fig(run, fig, "compare.png")
     if histories:
-        fig, ax = plot_cost_history(histories, xlabel="iteration (CCP: convex solves; IPOPT: Newton steps)",
+        fig, ax = plot_cost_history(histories, xlabel="iteration (CCP: convex solves; IPOPT: Newton steps; auto: both)",
                                     log=True, marker="")
         ax.set_title("steering cost per iteration", fontsize=9)
         _save_fig(run, fig, "compare_cost.png")

@@ -1,5 +1,6 @@
 """``belief-nlp demo``: the paper's experiment (section V) on paper-multi --
-IG-RRT* then CCP for each alpha, Figs. 2-4, GIFs and a summary."""
+IG-RRT* then the smoother (default auto; ``--method ccp`` for the paper's 15
+CCP iterations) for each alpha, Figs. 2-4, GIFs and a summary."""
 
 from __future__ import annotations
 
@@ -9,11 +10,11 @@ from typing import Any
 
 from ..errors import BeliefNLPError, ValidationError
 from .common import (EXIT_FAILED, EXIT_OK, PAPER_METHOD, _fail, _fmt_alpha, _load_scenario, _one_line, _Run,
-                     _save_path, _wrap)
+                     _save_path, _wrap, iterates_feasible)
 from .figures import _no_path_panel, _panels, _save_fig
 from .parser import _nonneg_float, _output_args, _planner_args, _smoother_args
 from .plan import _plan
-from .smooth import _accepted_costs, _smooth, _smooth_failed, _status_line
+from .smooth import _accepted_costs, _iterate_titles, _smooth, _smooth_failed, _status_line
 
 
 #: Rewiring-radius cap of the demo's planner (cost units). The scenario's 0.3
@@ -22,30 +23,42 @@ from .smooth import _accepted_costs, _smooth, _smooth_failed, _status_line
 #: whatever its length, and at alpha = 1 no neighbour lies within 0.3.
 DEMO_MAX_RADIUS = 1.5
 
+#: CCP iterations of the demo with --method ccp: the paper's 15, --quick's 3,
+#: --converged's cap. Other methods run to their own limit (until converged).
+PAPER_ITERATIONS, QUICK_ITERATIONS, CONVERGED_ITERATIONS = 15, 3, 200
+
 
 def add_parser(sub) -> None:
     """Add the ``demo`` subcommand to the subparsers ``sub``."""
     dp = sub.add_parser(
         "demo", help="the paper's experiment: plan + smooth on paper-multi, Figs. 2-4 and a GIF",
         description="Reproduce the paper's experiment (section V): IG-RRT* with N = 500 nodes on the "
-                    "1 m x 1 m paper-multi scenario (W = 0.2e-3 I), for alpha = 0.1 and 1.0, then 15 CCP "
-                    "iterations (--converged: until the cost stops falling). Writes into OUT: "
+                    "1 m x 1 m paper-multi scenario (W = 0.2e-3 I), for alpha = 0.1 and 1.0, then the "
+                    "smoother: by default auto (IPOPT on the exact NLP until converged, CCP from the best "
+                    "safe point as its fallback); --method ccp runs the paper's 15 CCP iterations "
+                    "(--converged: until the cost stops falling). Writes into OUT: "
                     "fig2_planner_paths.png, fig3_smoothed_paths.png, fig4_cost_history.png, "
                     "smoothing_alpha<A>.gif, plan_alpha<A>.json|npz, smooth_alpha<A>.json, "
                     "smoothed_path_alpha<A>.json|npz and summary.json (costs, statuses, timings). "
                     "Exit code 3 if planning or smoothing failed for some alpha (the figures show the rest).",
-        epilog="Examples:\n  belief-nlp demo --out demo_out\n  belief-nlp demo --converged --out demo_conv\n"
+        epilog="Examples:\n  belief-nlp demo --out demo_out\n"
+               "  belief-nlp demo --method ccp --out demo_ccp        # the paper's 15 CCP iterations\n"
+               "  belief-nlp demo --method ccp --converged --out demo_conv\n"
                "  belief-nlp demo --quick --out /tmp/demo   # seconds, for tests")
     dp.add_argument("--scenario", default="paper-multi", help="built-in scenario name or a .toml/.json file")
     dp.add_argument("--alphas", type=_nonneg_float, nargs="+", default=[0.1, 1.0], metavar="ALPHA",
                     help="information weights, one column of figures each")
     _planner_args(dp, max_radius=DEMO_MAX_RADIUS)
-    _smoother_args(dp, max_iter=15, method=False)
+    _smoother_args(dp, max_iter=None, max_iter_help=(
+        f"default: with --method ccp the paper's {PAPER_ITERATIONS} (--quick {QUICK_ITERATIONS}, --converged "
+        f"{CONVERGED_ITERATIONS}); other methods: their own limit, see belief-nlp methods"))
     dp.add_argument("--converged", action="store_true",
-                    help="run CCP until converged (up to 200 iterations) instead of the paper's 15")
+                    help=f"with --method ccp: run CCP until converged (up to {CONVERGED_ITERATIONS} iterations) "
+                         f"instead of the paper's {PAPER_ITERATIONS} (auto and ipopt run until converged anyway)")
     dp.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIFs of the smoothing")
     dp.add_argument("--quick", action="store_true",
-                    help="small settings for tests: 150 nodes, 3 CCP iterations, low-resolution figures")
+                    help=f"small settings for tests: 150 nodes, low-resolution figures and, with --method "
+                         f"ccp, {QUICK_ITERATIONS} CCP iterations")
     _output_args(dp, out_default="demo_out")
     dp.set_defaults(func=_cmd_demo)
 
@@ -53,13 +66,13 @@ def add_parser(sub) -> None:
 def _cmd_demo(run: _Run) -> int:
     import numpy as np
 
+    from ..smoother import get_method
+
     a = run.args
     if a.quick:
         a.nodes = min(a.nodes, 150) if a.nodes == 500 else a.nodes
-        a.max_iter = min(a.max_iter, 3) if a.max_iter == 15 else a.max_iter
         a.dpi = min(a.dpi, 60)
-    if a.converged:
-        a.max_iter = max(a.max_iter, 200)
+    a.max_iter = _demo_max_iter(a)
     base = _load_scenario(a.scenario, None)
     run.prepare_out()
     t_demo = time.perf_counter()
@@ -75,8 +88,9 @@ def _cmd_demo(run: _Run) -> int:
 
     summary = {
         "scenario": base.name, "nodes": a.nodes, "seed": a.seed, "noise": a.noise, "metric": a.metric,
-        "max_radius": a.max_radius,
-        "max_iter": a.max_iter, "tol": a.tol, "horizon": a.horizon, "quick": a.quick,
+        "max_radius": a.max_radius, "method": a.method,
+        "max_iter": a.max_iter if a.max_iter is not None else get_method(a.method).max_iter,
+        "tol": a.tol, "horizon": a.horizon, "quick": a.quick,
         "W": np.asarray(base.W).tolist(), "total_time_s": time.perf_counter() - t_demo,
         "runs": [_run_summary(e) for e in runs], "failures": failures,
     }
@@ -86,8 +100,8 @@ def _cmd_demo(run: _Run) -> int:
         s = _run_summary(e)
         if s.get("smooth_status"):
             run.say(f"alpha = {_fmt_alpha(e['alpha'])}: planner cost {s['plan_cost']:.5g} ({s['plan_steps']} steps); "
-                    f"CCP {s['smooth_status']} after {s['smooth_iterations']} iterations: steering cost "
-                    f"{s['initial_cost']:.5g} -> {s['smooth_cost']:.5g}")
+                    f"{s['smooth_method']} {s['smooth_status']} after {s['smooth_iterations']} iterations: "
+                    f"steering cost {s['initial_cost']:.5g} -> {s['smooth_cost']:.5g}")
     run.say(f"demo finished in {summary['total_time_s']:.1f} s")
     if failures:
         for f in failures:
@@ -96,8 +110,21 @@ def _cmd_demo(run: _Run) -> int:
     return EXIT_OK
 
 
+def _demo_max_iter(a) -> int | None:
+    """The demo's iteration limit: --max-iter when given; with --method ccp
+    the paper's 15 CCP iterations (--quick: 3, --converged: 200); for other
+    methods None, their own limit (auto and IPOPT run until converged)."""
+    if a.max_iter is not None:
+        return a.max_iter
+    if a.method != PAPER_METHOD:
+        return None
+    if a.converged:
+        return CONVERGED_ITERATIONS
+    return QUICK_ITERATIONS if a.quick else PAPER_ITERATIONS
+
+
 def _plan_and_smooth(run: _Run, sc) -> tuple[dict[str, Any], str | None]:
-    """IG-RRT* then CCP on ``sc`` (one alpha), writing the plan, the smoothing
+    """IG-RRT* then the smoother (--method) on ``sc`` (one alpha), writing the plan, the smoothing
     result, the smoothed path and the GIF. Returns the run's entry and what
     failed (None if nothing)."""
     from ..plotting import animate_smoothing
@@ -114,7 +141,7 @@ def _plan_and_smooth(run: _Run, sc) -> tuple[dict[str, Any], str | None]:
         return entry, f"alpha = {_fmt_alpha(alpha)}: planning failed: {pres.message}"
     t0 = time.perf_counter()
     try:
-        sres = _smooth(run, sc, pres.path, PAPER_METHOD, keep_iterates=a.gif, label=label)
+        sres = _smooth(run, sc, pres.path, a.method, keep_iterates=a.gif, label=label)
     except BeliefNLPError as exc:
         if isinstance(exc, ValidationError):
             raise
@@ -126,8 +153,8 @@ def _plan_and_smooth(run: _Run, sc) -> tuple[dict[str, Any], str | None]:
     failure = f"alpha = {_fmt_alpha(alpha)}: {_status_line(sres)}" if _smooth_failed(sres) else None
     if a.gif and sres.iterates:
         t0 = time.perf_counter()
-        titles = [f"alpha = {_fmt_alpha(alpha)}, CCP iteration {i}: cost "
-                  f"{p.steering_cost(alpha):.5g}" for i, p in enumerate(sres.iterates)]
+        titles = _iterate_titles(sres, prefix=f"alpha = {_fmt_alpha(alpha)}, ")
+        entry["gif_frames"] = len(titles)
         gif, _ = animate_smoothing(sc, sres.iterates, run.out / f"smoothing_{tag}.gif", fps=3,
                                    titles=titles, dpi=min(a.dpi, 80))
         run.wrote(gif)
@@ -137,7 +164,7 @@ def _plan_and_smooth(run: _Run, sc) -> tuple[dict[str, Any], str | None]:
 
 def _demo_figures(run: _Run, base, runs: list[dict]) -> None:
     """Figs. 2 and 3 (planner and smoothed paths, one panel per alpha) and
-    Fig. 4 (steering cost against CCP iteration)."""
+    Fig. 4 (steering cost against iteration of the method that ran)."""
     from ..plotting import plot_belief_path, plot_cost_history, plot_scenario
 
     a = run.args
@@ -154,8 +181,8 @@ def _demo_figures(run: _Run, base, runs: list[dict]) -> None:
                     ax.set_title(f"{head}: IG-RRT*, N = {a.nodes}, {res.path.K} steps\nplanner cost {res.cost:.4g}",
                                  fontsize=9)
                 else:
-                    ax.set_title(f"{head}: after {res.nit} CCP iterations, K = {res.path.K}\nsteering cost "
-                                 f"{res.initial_cost:.4g} -> {res.cost:.4g}", fontsize=9)
+                    ax.set_title(f"{head}: {_ran(res)}, {res.nit} iterations, K = {res.path.K}\nsteering "
+                                 f"cost {res.initial_cost:.4g} -> {res.cost:.4g}", fontsize=9)
             else:
                 plot_scenario(sc, ax=ax)
                 reason = (e["plan"].message if e["plan"] is not None and not e["plan"].success
@@ -166,11 +193,24 @@ def _demo_figures(run: _Run, base, runs: list[dict]) -> None:
                      fontsize=10)
         _save_fig(run, fig, fname)
 
-    histories = {f"alpha = {_fmt_alpha(e['alpha'])}": _accepted_costs(e["smooth"])
-                 for e in runs if e["smooth"] is not None}
-    fig, ax = plot_cost_history(histories or {"(no run)": []}, log=len(histories) > 1)
-    ax.set_title("Fig. 4: steering cost vs CCP iteration", fontsize=10)
+    done = [e for e in runs if e["smooth"] is not None]
+    ran = list(dict.fromkeys(_ran(e["smooth"]) for e in done))
+    mixed = len(ran) > 1
+    histories = {f"alpha = {_fmt_alpha(e['alpha'])}" + (f" ({_ran(e['smooth'])})" if mixed else ""):
+                 _accepted_costs(e["smooth"]) for e in done}
+    what = ran[0] if len(ran) == 1 else "smoother"
+    fig, ax = plot_cost_history(histories or {"(no run)": []}, log=len(histories) > 1,
+                                xlabel=f"{what} iteration")
+    # plain CCP: its accepted iterates (all feasible); IPOPT and auto: every iterate, feasible or not
+    note = "" if all(iterates_feasible(e["smooth"].method) for e in done) else "\n(every iterate, feasible or not)"
+    ax.set_title(f"Fig. 4: steering cost vs {what} iteration{note}", fontsize=10)
     _save_fig(run, fig, "fig4_cost_history.png")
+
+
+def _ran(res) -> str:
+    """What smoothed: "CCP" for the paper's method, else the result's method
+    ("auto:ipopt", "auto:ccp", "ipopt", ...)."""
+    return "CCP" if res.method == PAPER_METHOD else res.method
 
 
 def _run_summary(e: dict) -> dict:
@@ -181,10 +221,10 @@ def _run_summary(e: dict) -> dict:
                    plan_cost=p.cost if p.success else None, plan_steps=p.path.K if p.path is not None else None,
                    first_solution_node=p.first_solution_iteration)
     if s is not None:
-        out.update(smooth_status=s.status, smooth_message=s.message, smooth_iterations=s.nit,
+        out.update(smooth_method=s.method, smooth_status=s.status, smooth_message=s.message, smooth_iterations=s.nit,
                    initial_cost=s.initial_cost, smooth_cost=s.cost, smooth_steps=s.path.K,
                    cost_history=_accepted_costs(s), smooth_time_s=e.get("smooth_time"),
-                   gif_time_s=e.get("gif_time"), safe=s.safe)
+                   gif_time_s=e.get("gif_time"), gif_frames=e.get("gif_frames"), safe=s.safe)
     if "error" in e:
         out["error"] = e["error"]
     return out

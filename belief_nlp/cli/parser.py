@@ -9,7 +9,7 @@ import argparse
 import math
 from pathlib import Path
 
-from .common import PAPER_METHOD, smoothing_methods
+from .common import DEFAULT_METHOD, smoothing_methods
 
 
 class _UsageError(Exception):
@@ -140,7 +140,9 @@ def _planner_args(p: argparse.ArgumentParser, nodes: int = 500, title: str = "pl
 
 
 def _smoother_args(p: argparse.ArgumentParser, max_iter: int | None = None, method: bool = True,
-                   path: bool = False) -> None:
+                   path: bool = False, max_iter_help: str | None = None) -> None:
+    """The smoother's options; ``--max-iter`` defaults to ``max_iter`` (None:
+    each method's own limit), explained by ``max_iter_help`` if given."""
     if path:
         p.add_argument("--path", type=Path, metavar="FILE",
                        help="the path to smooth: a plan result, belief path or smoothing result (.json/.npz); "
@@ -150,19 +152,22 @@ def _smoother_args(p: argparse.ArgumentParser, max_iter: int | None = None, meth
                         "found is kept)")
     g = p.add_argument_group("smoother")
     if method:
-        g.add_argument("--method", choices=smoothing_methods(), default=PAPER_METHOD,
-                       help="a registered smoothing method (belief-nlp methods lists them); ccp: the "
-                            "convex-concave procedure (the paper's); ipopt: the same model by IPOPT")
+        g.add_argument("--method", choices=smoothing_methods(), default=DEFAULT_METHOD,
+                       help="a registered smoothing method (belief-nlp methods lists them); auto: IPOPT on "
+                            "the exact NLP, then CCP from the best safe point when IPOPT's answer is not "
+                            "taken; ccp: the convex-concave procedure (the paper's), every iterate feasible; "
+                            "ipopt: the exact NLP by IPOPT alone")
     g.add_argument("--horizon", "-K", dest="horizon", type=_positive_int, default=None, metavar="K",
                    help="time steps of the smoothed path, at least the path's edge count (edges are cut into "
                         "equal steps); default: the scenario's [horizon] K if the path fits, else one step "
                         "per edge")
     g.add_argument("--solver", default=None,
                    help="the method's solver; CCP: any installed CVXPY solver with PSD and exponential cones "
-                        "(default CLARABEL, e.g. SCS); IPOPT: IPOPT")
+                        "(default CLARABEL, e.g. SCS); auto and ipopt: IPOPT")
+    if max_iter_help is None and max_iter is None:
+        max_iter_help = "default: each method's own, see belief-nlp methods"
     g.add_argument("--max-iter", type=_positive_int, default=max_iter,
-                   help="iteration limit of the smoother" + (
-                       " (default: each method's own, see belief-nlp methods)" if max_iter is None else ""))
+                   help="iteration limit of the smoother" + (f" ({max_iter_help})" if max_iter_help else ""))
     g.add_argument("--tol", type=_positive_float, default=1e-4,
                    help="stop when an iteration lowers the cost by less than this fraction")
 

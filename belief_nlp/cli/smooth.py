@@ -1,4 +1,4 @@
-"""``belief-nlp smooth``: smooth a belief path (CCP or IPOPT), read from a file
+"""``belief-nlp smooth``: smooth a belief path (auto, CCP or IPOPT), read from a file
 or planned first; and the smoothing helpers ``compare`` and ``demo`` share."""
 
 from __future__ import annotations
@@ -16,19 +16,23 @@ from .plan import _plan, _plan_failed
 def add_parser(sub) -> None:
     """Add the ``smooth`` subcommand to the subparsers ``sub``."""
     ss = sub.add_parser(
-        "smooth", help="smooth a belief path (CCP or IPOPT), from a file or after planning",
+        "smooth", help="smooth a belief path (auto, CCP or IPOPT), from a file or after planning",
         description="Smooth a feasible belief path toward a local optimum of the paper's problem. The path "
                     "comes from --path (a plan result, a belief path or a smoothing result, JSON or NPZ) "
                     "or, without --path, from an IG-RRT* run with the planner options below. Writes "
                     "OUT/smooth.json (SmoothResult.load reads it), OUT/smoothed_path.json|npz "
                     "(BeliefPath.load), OUT/smooth.png (initial and smoothed paths), OUT/smooth_cost.png "
-                    "(cost per iteration) and, with --gif, OUT/smoothing.gif. The status (converged, "
+                    "(cost per iteration) and, with --gif, OUT/smoothing.gif. The default method, auto, runs "
+                    "IPOPT on the exact NLP and falls back to CCP from the best safe point; the result "
+                    "says which answered (auto:ipopt or auto:ccp). The status (converged, "
                     "max_iter, time_limit, ...) is printed; solver failures exit with code 3.",
-        epilog="Examples:\n  belief-nlp smooth paper-multi --path out/plan.json --max-iter 15\n"
+        epilog="Examples:\n  belief-nlp smooth paper-multi --path out/plan.json\n"
+               "  belief-nlp smooth paper-multi --path out/plan.json --method ccp --max-iter 15\n"
                "  belief-nlp smooth paper-multi --nodes 500 --alpha 1.0 --method ipopt --out out_ipopt")
     _scenario_arg(ss)
     _smoother_args(ss, path=True)
-    ss.add_argument("--gif", action="store_true", help="also write OUT/smoothing.gif, one frame per iteration")
+    ss.add_argument("--gif", action="store_true",
+                    help="also write OUT/smoothing.gif, one frame per kept feasible iterate (CCP: every iteration)")
     _plan_unless_path_args(ss)
     ss.set_defaults(func=_cmd_smooth)
 
@@ -57,7 +61,8 @@ def _cmd_smooth(run: _Run) -> int:
     ax.set_title(f"steering cost (alpha = {res.alpha:g}{note})", fontsize=9)
     _save_fig(run, fig, "smooth_cost.png")
     if a.gif and res.iterates:
-        gif, _ = animate_smoothing(sc, res.iterates, run.out / "smoothing.gif", dpi=min(a.dpi, 80))
+        gif, _ = animate_smoothing(sc, res.iterates, run.out / "smoothing.gif", dpi=min(a.dpi, 80),
+                                   titles=_iterate_titles(res))
         run.wrote(gif)
     run.list_written()
     run.say(f"smooth: {_status_line(res)}; steering cost at K = {res.path.K}: {res.initial_cost:.6g} -> "
@@ -81,8 +86,8 @@ def _smooth(run: _Run, sc, path, method: str, *, keep_iterates: bool = False, la
                      time_limit=a.time_limit, keep_iterates=keep_iterates, progress=not run.quiet)
     except ImportError as exc:  # a method whose module is not installed
         raise BeliefNLPError(f"method {method!r} is not available in this installation: {exc}") from None
-    log.info("%s%s: %s, cost %.6g after %d iterations in %.1f s", label, method.upper(), res.status, res.cost,
-             res.nit, time.perf_counter() - t0)
+    log.info("%s%s: %s, cost %.6g after %d iterations in %.1f s", label, res.method.upper(), res.status,
+             res.cost, res.nit, time.perf_counter() - t0)
     return res
 
 
@@ -102,10 +107,27 @@ def _horizon(requested: int | None, sc, path) -> tuple[int, str]:
 
 
 def _accepted_costs(res) -> list[float]:
-    """Cost per iteration as drawn: CCP's accepted iterates (a rejected step is
-    not part of the run); for IPOPT every iterate, feasible or not (its
-    interior-point iterates become feasible only as it converges)."""
+    """Cost per iteration as drawn: plain CCP's accepted iterates (a rejected
+    step is not part of the run); for IPOPT and auto every iterate, feasible or
+    not (interior-point iterates become feasible only as IPOPT converges)."""
     return _plotted_costs(getattr(res, "method", PAPER_METHOD), ((h.cost, h.accepted) for h in res.history))
+
+
+def _iterate_titles(res, prefix: str = "") -> list[str]:
+    """GIF frame titles for ``res.iterates`` (the warm start, then every kept
+    feasible iterate) naming the method that ran: plain CCP keeps every
+    iterate, so frame i is CCP iteration i; other methods (IPOPT, auto) keep
+    a few feasible ones, numbered among themselves."""
+    paths = res.iterates or []
+    n = len(paths) - 1
+    titles = []
+    for i, p in enumerate(paths):
+        if iterates_feasible(res.method):
+            what = f"{res.method.upper()} iteration {i}"
+        else:
+            what = f"{res.method}: " + ("warm start" if i == 0 else f"feasible iterate {i} of {n}")
+        titles.append(f"{prefix}{what}: cost {p.steering_cost(res.alpha):.5g}")
+    return titles
 
 
 def _status_line(res) -> str:

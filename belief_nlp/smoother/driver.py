@@ -35,7 +35,7 @@ from ..model import BeliefModel, Layout
 from ..path import BeliefPath
 from ..scenario import Scenario, load_scenario
 from .context import Outcome, SmoothingProblem
-from .registry import Method, resolve_method
+from .registry import DEFAULT_METHOD, Method, resolve_method
 from .result import STATUSES, SmoothResult
 from .warmstart import WarmStart, warm_start
 
@@ -105,7 +105,7 @@ def _path(path: Any) -> BeliefPath | WarmStart:
                                   f"got {type(path).__name__}")
 
 
-def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method = "ccp", K: int | None = None,
+def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method = DEFAULT_METHOD, K: int | None = None,
            max_iter: int | None = None, tol: float = 1e-4, solver: str | None = None, alpha: float | None = None, *,
            time_limit: float | None = None, solver_options: dict | None = None, keep_iterates: bool = False,
            progress: bool = False, sensing: str = "minimal", callback: Callable | None = None,
@@ -117,15 +117,19 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
     scenario : Scenario, or a built-in name / scenario file.
     path : any feasible BeliefPath (planner output, file, hand-made), a
         PlanResult or SmoothResult (its path), or a :class:`WarmStart`.
-    method : a name from :func:`available_methods` ("ccp": convex-concave
-        procedure, paper section IV; "ipopt": the exact NLP by IPOPT), a
-        registered :class:`Method`, or a callable ``fn(problem, **options)``
-        returning an :class:`Outcome`.
+    method : a name from :func:`available_methods` -- "auto" (the default,
+        :data:`DEFAULT_METHOD`): IPOPT on the exact NLP, then CCP from the best
+        exactly safe point when IPOPT's answer is not taken (``result.method``
+        says which answered: "auto:ipopt" or "auto:ccp"); "ccp": the
+        convex-concave procedure, paper section IV, every iterate feasible;
+        "ipopt": the exact NLP by IPOPT alone -- a registered :class:`Method`,
+        or a callable ``fn(problem, **options)`` returning an :class:`Outcome`.
     K : horizon; None = one step per path edge (see :func:`warm_start`).
     max_iter : iteration limit; None = the method's own default.
     tol : relative optimality tolerance (module doc).
     solver : the method's solver (CCP: any installed CVXPY solver with PSD and
-        exponential cones, default CLARABEL); None = the method's default.
+        exponential cones, default CLARABEL; auto and ipopt: IPOPT, auto's CCP
+        stage takes ``ccp_solver=``); None = the method's default.
     alpha : information weight; None = the scenario's.
     time_limit : wall-time budget in seconds, warm start and model build included.
     solver_options : passed to the solver.
@@ -139,7 +143,8 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
         unsafe), fall back to one step per path edge and say so in
         ``stats["warm_start"]`` and the message; False raises instead.
     **options : the method's own options (``bn.available_methods()``;
-        ``get_method(name).options`` documents them).
+        ``get_method(name).options`` documents them). CCP-only options such as
+        ``constraints`` or ``hook`` need ``method="ccp"``.
 
     Returns
     -------

@@ -5,6 +5,10 @@ Adding a method is one new file that calls :func:`register` (see
 ``belief_nlp/methods/ccp.py``) plus its tests; the CLI, :func:`compare` and
 studies list :func:`available_methods` and need no edit. :func:`smooth`
 also takes a plain callable, as ``scipy.optimize.minimize`` does.
+
+:data:`DEFAULT_METHOD` ("auto": IPOPT on the exact NLP, CCP from the best
+safe point as its fallback) is what :func:`smooth` and the command line run
+when no method is named.
 """
 
 from __future__ import annotations
@@ -15,7 +19,10 @@ from typing import Any, Callable
 
 from ..errors import ValidationError
 
-__all__ = ["Option", "Method", "register", "available_methods", "get_method", "resolve_method"]
+__all__ = ["DEFAULT_METHOD", "Option", "Method", "register", "available_methods", "get_method", "resolve_method"]
+
+#: The method used when none is named (``smooth``, the CLI's ``--method``, the demo).
+DEFAULT_METHOD = "auto"
 
 
 @dataclass(frozen=True)
@@ -98,9 +105,14 @@ def _load_builtins() -> None:
 
 
 def available_methods() -> list[str]:
-    """Names of the registered smoothing methods, built-ins first."""
+    """Names of the registered smoothing methods: :data:`DEFAULT_METHOD`
+    first, then the others in registration order (built-ins first)."""
     _load_builtins()
-    return list(_REGISTRY)
+    names = list(_REGISTRY)
+    if DEFAULT_METHOD in names:
+        names.remove(DEFAULT_METHOD)
+        names.insert(0, DEFAULT_METHOD)
+    return names
 
 
 def get_method(name: str) -> Method:

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping
 
 from ..errors import ValidationError
+from ..smoother.registry import DEFAULT_METHOD
 from .cases import Case, Limits, MethodVariant, resolve_scenarios
 
 __all__ = ["Study", "load_study", "builtin_studies"]
@@ -90,7 +91,7 @@ class Study:
     seeds: list[int] = field(default_factory=lambda: [0])
     alpha: list[float] = field(default_factory=lambda: [0.1])
     K: list[int | None] = field(default_factory=lambda: [20])
-    methods: list[str] = field(default_factory=lambda: ["ccp"])
+    methods: list[str] = field(default_factory=lambda: [DEFAULT_METHOD])
     planner: dict = field(default_factory=dict)
     solver: dict = field(default_factory=dict)
     arms: list[dict] = field(default_factory=list)
