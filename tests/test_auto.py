@@ -38,6 +38,6 @@ def test_ccp_continues_when_ipopt_stops_early(small):
 def test_polish_never_raises_the_cost(small):
     sc, path = small
     plain = bn.smooth(sc, path, method="auto", alpha=1.0)
-    polished = bn.smooth(sc, path, method="auto", alpha=1.0, polish=3)
+    polished = bn.smooth(sc, path, method="auto", alpha=1.0, ccp_polish=3)
     assert polished.cost <= plain.cost * (1 + 1e-12) and polished.safe
     assert polished.method in ("auto:ipopt+ccp", "auto:ipopt")

@@ -45,7 +45,11 @@ def test_converges_verified_on_paper_multi(hand_start, alpha):
     # history: warm start, then one record per IPOPT iteration
     assert res.history[0].solver_status == "warm_start" and res.history[0].iteration == 0
     assert len(res.history) == res.nit + 1
-    assert res.history[-1].solver_status.startswith("Solve")
+    # the floored log-Cholesky stage converged; the polish's records follow it
+    assert res.stats["attempts"][0]["formulation"] == "logchol"
+    assert res.stats["attempts"][0]["return_status"] == "Solve_Succeeded"
+    assert any(h.solver_status == "Solve_Succeeded" for h in res.history)
+    assert all(isinstance(a["restoration"], int) and a["restoration"] >= 0 for a in res.stats["attempts"])
     assert res.timings["total"] >= res.timings["solver"] > 0
 
 
@@ -82,6 +86,34 @@ def test_other_formulations(small_start, formulation):
     assert res.cost == pytest.approx(ref.cost, rel=2e-2)
 
 
+def test_logchol_floor_lifts_sensing_safely(hand_start):
+    """pack() lifts L's diagonal to the floor: sensing only grows, so every
+    collision row is at least the model's (start rows grow, end rows keep the
+    lifted Q), the target rows too; the unpacked S holds the floor."""
+    sc, ws = hand_start
+    model = BeliefModel(sc, ws.K, 1.0)
+    z = model.tighten(model.from_path(ws.path, ws.lam))
+    nlp = build_nlp(model, "logchol", floor=1e-2)
+    zv = nlp.pack(z)
+    col, tgt = (np.asarray(v).ravel() for v in nlp.margins(zv))
+    start, end = model.transition_margins(z)
+    both = np.stack([start, end], axis=-1).ravel()
+    assert np.all(col >= both - 1e-9) and np.any(col > both + 1e-6)
+    assert np.all(tgt >= model.target_margins(z) - 1e-12)
+    back = nlp.unpack(zv)
+    for k in range(1, ws.K + 1):
+        assert np.linalg.eigvalsh(back.S[k] - 1e-4 * np.eye(2)).min() >= -1e-12
+    # the polish's start: floor-held columns fixed at 0, the rest free
+    chol = build_nlp(model, "cholesky")
+    z0, lbz, ubz = chol.without_sensing(back, 1e-2)
+    fixed = np.flatnonzero(lbz == ubz)
+    expect = 0
+    for k in range(1, ws.K + 1):     # a column of L at the floor: 2 entries (column 0) or 1 (column 1)
+        norms = np.linalg.norm(np.linalg.cholesky(back.S[k]), axis=0)
+        expect += 2 * (norms[0] <= 1.1e-2) + (norms[1] <= 1.1e-2)
+    assert 0 < fixed.size == expect and np.all(z0[fixed] == 0.0) and np.all(np.isinf(lbz[z0 != 0][:40]))
+
+
 def test_nlp_uses_the_model_margins(hand_start):
     """The NLP's collision and target rows are the model's own functions:
     at the warm start they equal BeliefModel.transition_margins / target_margins."""
@@ -89,7 +121,9 @@ def test_nlp_uses_the_model_margins(hand_start):
     model = BeliefModel(sc, ws.K, 0.1)
     z = model.tighten(model.from_path(ws.path, ws.lam))
     for formulation in FORMULATIONS:
-        nlp = build_nlp(model, formulation)
+        # logchol lifts L's diagonal to its floor: a floor below the warm
+        # start's ~1e-6 keeps the point (the default floor is tested below)
+        nlp = build_nlp(model, formulation, floor=1e-9)
         zv = nlp.pack(z)
         col, tgt = (np.asarray(v).ravel() for v in nlp.margins(zv))
         start, end = model.transition_margins(z)
@@ -199,7 +233,7 @@ def test_planner_warm_starts_study(alpha):
             ws = bn.warm_start(sc, planned.path, K=max(sc.K, planned.path.K))
         except bn.InfeasibleStartError:
             ws = bn.warm_start(sc, planned.path)
-        ccp = bn.smooth(sc, ws, alpha=alpha, max_iter=100)
+        ccp = bn.smooth(sc, ws, method="ccp", alpha=alpha, max_iter=100)
         ipo = bn.smooth(sc, ws, method="ipopt", alpha=alpha, max_iter=3000)
         good += ipo.success and ipo.safe and ipo.cost <= 1.01 * ccp.cost
     assert good >= 9

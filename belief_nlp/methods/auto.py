@@ -5,7 +5,7 @@ IPOPT converged and the point passes the shared certified check (the driver
 then also verifies it and holds it to the warm start's cost). Otherwise --
 failure, stall, time, or an unsafe end point -- CCP continues from the best
 exactly safe point found so far (IPOPT's recorded candidates, at worst the
-warm start), and its monotone descent gives the answer. With ``polish``,
+warm start), and its monotone descent gives the answer. With ``ccp_polish``,
 CCP also runs a few steps after a converged IPOPT answer and keeps them
 only if they lower the cost (CCP sometimes finds a lower local optimum).
 
@@ -38,7 +38,18 @@ def _stage(problem: SmoothingProblem, budget: int, fn, solver: str, solver_optio
         problem.max_iter, problem.solver, problem.solver_options = saved
 
 
-def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, polish: int = 0, ccp_solver: str = "CLARABEL",
+def _totals(stats: dict, answer: str) -> dict:
+    """The raw keys every method's stats carry, summed over the stages;
+    return_status is the answering stage's."""
+    stages = [stats[k] for k in ("ipopt", "ccp") if k in stats]
+    stats["iter_count"] = int(sum(s.get("iter_count", 0) for s in stages))
+    stats["cpu_time"] = float(sum(s.get("cpu_time", 0.0) for s in stages))
+    stats["restoration"] = int(stats["ipopt"].get("restoration", 0))
+    stats["return_status"] = stats.get(answer, {}).get("return_status", "")
+    return stats
+
+
+def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int = 0, ccp_solver: str = "CLARABEL",
         ccp_solver_options: dict | None = None) -> Outcome:
     """IPOPT, then CCP when IPOPT's answer is not taken (module doc). The
     run's ``solver_options`` go to IPOPT; CCP's come from ``ccp_solver_options``."""
@@ -49,23 +60,25 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, polish: int = 0, cc
     if first.status == "converged" and first.point is not None:
         chk = problem.check(first.point)
         if chk.safe and problem.model.cost(chk.point)[0] <= problem.cost0:
-            if not polish or problem.out_of_time():
-                return Outcome("converged", f"IPOPT: {first.message}", chk.point, "IPOPT", stats, "auto:ipopt")
+            if not ccp_polish or problem.out_of_time():
+                return Outcome("converged", f"IPOPT: {first.message}", chk.point, "IPOPT", _totals(stats, "ipopt"),
+                               "auto:ipopt")
             problem.points[len(problem.history) - 1] = chk.point
-            second = _stage(problem, len(problem.history) + polish - 1, ccp.run, *ccp_opts, _start=chk.point)
+            second = _stage(problem, len(problem.history) + ccp_polish - 1, ccp.run, *ccp_opts, _start=chk.point)
             stats.update(ccp=second.stats, stages=["ipopt", "ccp polish"])
             # the driver picks the lowest-cost verified candidate: IPOPT's point or a polished one
             return Outcome("converged", f"IPOPT: {first.message}; CCP polish: {second.status}", None, "IPOPT+CCP",
-                           stats, "auto:ipopt+ccp")
+                           _totals(stats, "ipopt"), "auto:ipopt+ccp")
     if problem.out_of_time() or problem.stop_requested:
-        return Outcome(first.status, f"IPOPT: {first.message}", first.point, "IPOPT", stats, "auto:ipopt")
+        return Outcome(first.status, f"IPOPT: {first.message}", first.point, "IPOPT", _totals(stats, "ipopt"),
+                       "auto:ipopt")
     # CCP from the best exactly safe point so far
     best = min(problem.points.items(), key=lambda kv: problem.model.cost(kv[1])[0], default=(None, None))[1]
     start = best if best is not None and problem.model.cost(best)[0] <= problem.cost0 else problem.start
     second = _stage(problem, problem.max_iter, ccp.run, *ccp_opts, _start=start)
     stats.update(ccp=second.stats, stages=["ipopt", "ccp"])
     return Outcome(second.status, f"IPOPT: {first.status}; CCP from the best safe point: {second.message}",
-                   None, ccp_solver, stats, "auto:ccp")
+                   None, ccp_solver, _totals(stats, "ccp"), "auto:ccp")
 
 
 def _count(v: Any) -> str | None:
@@ -79,7 +92,7 @@ METHOD = register(Method(
     description="IPOPT on the exact NLP; CCP from the best safe point when IPOPT's answer is not taken",
     iteration="one IPOPT iteration or one CCP step",
     options={"ccp_reserve": Option(50, "iterations of the budget kept for the CCP fallback", _count),
-             "polish": Option(0, "CCP steps tried after a converged IPOPT answer (kept only if lower)", _count),
+             "ccp_polish": Option(0, "CCP steps tried after a converged IPOPT answer (kept only if lower)", _count),
              "ccp_solver": Option("CLARABEL", "conic solver of the CCP stage", ccp._check_solver),
              "ccp_solver_options": Option(None, "solver options of the CCP stage (solver_options go to IPOPT)",
                                           lambda v: None if v is None or isinstance(v, dict) else "must be a dict")},

@@ -199,7 +199,11 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     rho_s = rho_e.copy()
     status, message = "max_iter", STATUSES["max_iter"]
     bar = problem.progress_bar("CCP")
-    stats = {"compile": origin, "build_time": build_time, "solver_iterations": 0}
+    # the same raw keys as the NLP methods: return_status (the last subproblem's),
+    # iter_count (CCP steps), cpu_time (this process, the run's steps)
+    stats = {"compile": origin, "build_time": build_time, "solver_iterations": 0, "return_status": "",
+             "iter_count": 0, "solve_time": 0.0, "cpu_time": 0.0}
+    cpu0 = time.process_time()
     for it in range(first, problem.max_iter + 1):
         if problem.out_of_time():
             status, message = "time_limit", STATUSES["time_limit"]
@@ -231,6 +235,9 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
                 break
             log.warning("CCP iteration %d: subproblem %s%s", it, sstat, "" if retry else "; retrying")
         stats["solver_iterations"] += sit
+        stats["iter_count"] += 1
+        stats["solve_time"] += stime
+        stats["return_status"] = sstat
         if origin == "compiled" and disk is not None and z_new is not None and it == 1 and not step.user:
             disk.save(problem_key(D, CHI2_MARGIN, solver), step)
         if z_new is None:
@@ -283,6 +290,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
             break
     if bar is not None:
         bar.close()
+    stats["cpu_time"] = time.process_time() - cpu0
     return Outcome(status, message, None, solver, stats)
 
 

@@ -37,7 +37,7 @@ from .evaluate import BeliefModel
 
 __all__ = ["NLPProblem", "build_nlp", "FORMULATIONS"]
 
-FORMULATIONS = ("cholesky", "minors", "eliminated")
+FORMULATIONS = ("cholesky", "logchol", "minors", "eliminated")
 
 
 @dataclass
@@ -77,6 +77,30 @@ class NLPProblem:
     n_collision: int
     info: dict = field(default_factory=dict)
 
+    def without_sensing(self, lay: Layout, floor: float, slack: float = 0.1) -> tuple[np.ndarray, np.ndarray,
+                                                                                    np.ndarray]:
+        """Start and bounds of a "cholesky" NLP on which the sensing directions
+        that ``lay`` holds at the floor of a "logchol" answer are switched off:
+        a column of L whose norm is at most floor (1 + slack) (its diagonal at
+        the floor up to the interior-point offset, ~1e-3 relative, nothing
+        below it) is fixed at 0.
+        The rest of L is free and away from the L = 0 saddle, so IPOPT converges
+        near this point; the cost's gradient in a switched-off direction is
+        positive at such an answer (its bound was active), which keeps the
+        point stationary for the full problem. Returns (z0, lbz, ubz)."""
+        if self.formulation != "cholesky":
+            raise ValidationError("formulation", "without_sensing() needs the 'cholesky' NLP")
+        tri, d, K, off = self.info["tri"], self.info["d"], self.info["K"], self.info["sensing_offset"]
+        z0, lbz, ubz = self.pack(lay), self.lbz.copy(), self.ubz.copy()
+        for k in range(1, K + 1):
+            cols = np.linalg.norm(_psd_factor(lay.S[k]), axis=0)
+            for c in np.flatnonzero(cols <= floor * (1 + slack)):
+                for p, (i, j) in enumerate(tri):
+                    if j == c:
+                        idx = off + (k - 1) * len(tri) + p
+                        z0[idx] = lbz[idx] = ubz[idx] = 0.0
+        return z0, lbz, ubz
+
 
 def _tri_index(d: int) -> list[tuple[int, int]]:
     return [(i, j) for i in range(d) for j in range(i + 1)]
@@ -107,17 +131,21 @@ def _psd_factor(S: np.ndarray) -> np.ndarray:
 
 
 def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float = 1e-6,
-              regularisation: float = 1e-4) -> NLPProblem:
+              regularisation: float = 1e-4, floor: float = 1e-2) -> NLPProblem:
     """Build the NLP of the module docstring from ``model``'s CasADi functions.
 
     formulation : "cholesky" (S = L L^T, Q_k = M_k M_k^T lifted with the Kalman
-        equality; default), "minors" (S symmetric, kept PSD by its principal
-        minors; Q as "cholesky") or "eliminated" (S = L L^T, Q_k given by the
+        equality; default), "logchol" (as "cholesky" with L_ii = exp(w_i),
+        w_i >= log(floor): keeps the iterates off the L = 0 saddle; its answer
+        senses at least floor^2 per axis, so a "cholesky" polish follows it),
+        "minors" (S symmetric, kept PSD by its principal minors; Q as
+        "cholesky") or "eliminated" (S = L L^T, Q_k given by the
         Kalman recursion, no Q variables).
     margin : relative clearance margin kept in every collision constraint
         (m = margin * chi2) and absolute one (scaled length) in containment.
     regularisation : eps of the certificates' proximal term (0 to drop it);
         its centre lam_0 is the NLP's parameter (``NLPProblem.anchor``).
+    floor : smallest diagonal entry of L (scaled units) for "logchol".
     """
     if formulation not in FORMULATIONS:
         raise ValidationError("formulation", f"must be one of {FORMULATIONS}, got {formulation!r}")
@@ -129,7 +157,7 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
     nf = D.face_mask.sum(axis=1).astype(int)
     offs = np.concatenate([[0], np.cumsum(nf)])
     n_lam = int(offs[-1])
-    lift_q = formulation in ("cholesky", "minors")
+    lift_q = formulation in ("cholesky", "logchol", "minors")
 
     X = ca.SX.sym("x", d, K)
     Sv = ca.SX.sym("s", t, K)
@@ -162,6 +190,8 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
                     g_psd.append(ca.det(Sk[rows, rows]))
         else:
             Lk = _lower(Sv[:, k - 1], tri, d)
+            if formulation == "logchol":
+                Lk = ca.tril(Lk, False) + ca.diag(ca.exp(ca.diag(Lk)))
             Sk = Lk @ Lk.T
         Y.append(Q[k] + Sk)
 
@@ -201,6 +231,10 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
         m_lb = np.full((t, K - 1), -np.inf)
         m_lb[diag_pos, :] = 1e-8                       # M_k,ii > 0: log det Q_k defined
         lbz[nX + nS:nX + nS + nM] = m_lb.ravel(order="F")
+    if formulation == "logchol":
+        s_lb = np.full((t, K), -np.inf)
+        s_lb[diag_pos, :] = np.log(floor)
+        lbz[nX:nX + nS] = s_lb.ravel(order="F")
     lbz[nX + nS + nM:] = 0.0                           # lam >= 0
 
     parts = ca.Function("parts", [z, p], [control, information, reg], ["z", "p"],
@@ -212,7 +246,11 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
         if formulation == "minors":
             Sp = np.stack([[0.5 * (lay.S[k][i, j] + lay.S[k][j, i]) for i, j in tri] for k in range(1, K + 1)], 1)
         else:
-            Sp = np.stack([[_psd_factor(lay.S[k])[i, j] for i, j in tri] for k in range(1, K + 1)], 1)
+            Ls = [_psd_factor(lay.S[k]) for k in range(1, K + 1)]
+            if formulation == "logchol":
+                for Lk in Ls:   # lifted to the floor (more sensing: the start stays safe)
+                    Lk[np.diag_indices(d)] = np.log(np.maximum(np.diag(Lk), floor))
+            Sp = np.stack([[Lk[i, j] for i, j in tri] for Lk in Ls], 1)
         parts_ = [Xv.ravel(order="F"), Sp.ravel(order="F")]
         if lift_q:
             Mp = np.stack([[np.linalg.cholesky(0.5 * (lay.Q[k] + lay.Q[k].T))[i, j] for i, j in tri]
@@ -233,6 +271,8 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
             M = np.zeros((d, d))
             for p, (i, j) in enumerate(tri):
                 M[i, j] = Sp[k - 1, p]
+            if formulation == "logchol":
+                M[np.diag_indices(d)] = np.exp(np.diag(M))
             if formulation == "minors":
                 Ssym = M + M.T - np.diag(np.diag(M))
                 w, V = np.linalg.eigh(Ssym)
@@ -260,4 +300,5 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
     return NLPProblem(formulation, z, p, control + D.alpha * information + reg, g, lbz, ubz, lbg, ubg, parts,
                       margins, pack, unpack, anchor, n_col,
                       info={"n_variables": int(z.shape[0]), "n_constraints": int(g.shape[0]),
-                            "n_kalman": n_kal, "n_psd": n_psd, "n_target": n_tgt})
+                            "n_kalman": n_kal, "n_psd": n_psd, "n_target": n_tgt, "sensing_offset": nX,
+                            "tri": tri, "d": d, "K": K})
