@@ -23,7 +23,7 @@ __all__ = ["certificate_warm_start"]
 
 
 def certificate_warm_start(scenario: Scenario | str, path: BeliefPath, bundle: SafetyBundle | None = None,
-                           check: bool = True) -> np.ndarray:
+                           check: bool = True, hazards=None) -> np.ndarray:
     """Certificates (K, J F) for every transition of ``path``, in ``bundle``'s units.
 
     Row k is the ``lam`` input of ``bundle`` for the transition k -> k+1
@@ -33,13 +33,15 @@ def certificate_warm_start(scenario: Scenario | str, path: BeliefPath, bundle: S
     :class:`~belief_nlp.errors.InfeasibleStartError` names the first
     transition and hazard that violate its bound -- a path that is not itself
     clear has no certificate (Theorem 1 is exact); make it clear first with
-    :func:`belief_nlp.warm_start` (it adds sensing).
+    :func:`belief_nlp.warm_start` (it adds sensing). ``hazards``: the
+    scenario's :class:`~belief_nlp.geometry.PolytopeSet`, if already built
+    (a closed loop calls this every step; building it costs ~30 ms).
     """
     from ..smoother.warmstart import certificates
 
     sc = _scenario(scenario)
     bundle = stage_bundle(sc) if bundle is None else bundle
-    lam_si = certificates(sc, path)                           # (K, J, F_model), SI
+    lam_si = certificates(sc, path, hazards)                  # (K, J, F_model), SI
     K, J, F = lam_si.shape
     out = np.zeros((K, bundle.J, bundle.F))
     out[:, :J, :F] = lam_si

@@ -86,8 +86,6 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
     horizon, steps, step_times (s), iterations, fallback_steps. Raises
     SolverError when a step can be neither solved nor taken from the last plan.
     """
-    from ..geometry import PolytopeSet
-
     if tool not in TOOLS:
         raise ValidationError("tool", f"must be one of {sorted(TOOLS)}, got {tool!r}")
     sc = _scenario(scenario)
@@ -100,7 +98,7 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
     if ref.K != steps:
         raise ValidationError("reference", f"must have {steps} transitions, got {ref.K}")
     mpc = make_solver(tool, kit, horizon)
-    hazards = PolytopeSet.build(sc.hazards)
+    hazards = kit.hazards                              # built once; hold() uses it too
     U = kit.guess(ref, extra=horizon)                 # (nu, steps + horizon)
     x, P = sc.x0.copy(), sc.P0.copy()
     xs, Ss, times, iters = [x], [], [], []

@@ -83,6 +83,8 @@ class BeliefMPC:
     step: ca.Function = field(init=False)
     rows: ca.Function = field(init=False)
     cost: ca.Function = field(init=False)
+    _rollouts: dict = field(init=False, default_factory=dict, repr=False)
+    _hazards: object = field(init=False, default=None, repr=False)
 
     @classmethod
     def build(cls, scenario: Scenario | str, alpha: float | None = None, track: float = 10.0,
@@ -229,22 +231,36 @@ class BeliefMPC:
         k = t + np.arange(horizon)
         return np.stack([(k < steps).astype(float), (k == steps - 1).astype(float)])
 
+    @property
+    def hazards(self):
+        """The scenario's hazards as a :class:`~belief_nlp.geometry.PolytopeSet`
+        (built once: :meth:`hold` runs every closed-loop step)."""
+        if getattr(self, "_hazards", None) is None:
+            from ..geometry import PolytopeSet
+
+            self._hazards = PolytopeSet.build(self.scenario.hazards)
+        return self._hazards
+
     def guess(self, reference: BeliefPath, extra: int = 0) -> np.ndarray:
         """Inputs (nu, K + extra) that reproduce ``reference`` (a safe path) with
         certificates from :func:`.certificate_warm_start`, so that the first
         solve starts feasible; ``extra`` stages past the end (switched off by
         :meth:`gates`) stay put with a tiny sensing factor."""
-        lam = certificate_warm_start(self.scenario, reference, self.stage)
+        lam = certificate_warm_start(self.scenario, reference, self.stage, hazards=self.hazards)
         U = [self.input(reference.x[k], reference.x[k + 1], reference.S[k + 1], lam[k]) for k in range(reference.K)]
         rest = self.input(reference.x[-1], reference.x[-1], np.zeros((self.d, self.d)), np.zeros(self.stage.n_lam))
         return np.stack(U + [rest] * extra, 1)
 
     def rollout(self, state: np.ndarray, V: np.ndarray) -> np.ndarray:
         """States (nx, N+1) of the inputs V (nu, N) from ``state`` (the model's :attr:`step`)."""
-        S = [np.asarray(state, float)]
-        for k in range(V.shape[1]):
-            S.append(np.asarray(self.step(S[-1], V[:, k])).ravel())
-        return np.stack(S, 1)
+        V = np.asarray(V, float)
+        state = np.asarray(state, float).reshape(-1, 1)
+        if V.shape[1] == 0:
+            return state
+        n = V.shape[1]
+        if n not in self._rollouts:
+            self._rollouts[n] = self.step.mapaccum(n)      # one call for the whole horizon
+        return np.hstack([state, self._rollouts[n](state, V).full()])
 
     def hold(self, state: np.ndarray, v_last: np.ndarray) -> np.ndarray:
         """An input for one more stage after a plan that ends in ``state``: stay
@@ -264,7 +280,7 @@ class BeliefMPC:
         try:
             path = BeliefPath.from_sensing(np.array([x, x]), P, S[None], W=self.scenario.W, noise="per_step")
             v[self.d + len(self.tri):self.d + len(self.tri) + self.stage.n_lam] = \
-                certificate_warm_start(self.scenario, path, self.stage)[0]
+                certificate_warm_start(self.scenario, path, self.stage, hazards=self.hazards)[0]
         except (InfeasibleStartError, ValidationError, ValueError):
             return np.array(v_last, float)
         return v

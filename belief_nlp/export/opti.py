@@ -3,7 +3,7 @@
 Usage (paper-multi closed loop; :func:`.closed_loop.closed_loop` does exactly this)::
 
     kit = BeliefMPC.build("paper-multi")
-    mpc = OptiMPC(kit, horizon=10)                   # variables, dynamics, bundles, cost, IPOPT
+    mpc = OptiMPC(kit, horizon=10)                   # variables, dynamics, bundles, cost, IPOPT (built once)
     v = mpc.solve(kit.state(x, P), t, steps, ref, guess)   # (nu, horizon) plan
     x, P, S = kit.apply(x, P, v[:, 0])               # apply the first step
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..errors import SolverError
+from ..errors import SolverError, ValidationError
 from .kit import BeliefMPC
 
 __all__ = ["OptiMPC", "ipopt_options"]
@@ -22,7 +22,8 @@ __all__ = ["OptiMPC", "ipopt_options"]
 def ipopt_options(warm: bool = False, **overrides) -> dict:
     """IPOPT settings of the MPC adapters: the smoother's defaults
     (docs/numerics.md), quiet. ``warm=True``: the settings of a solve that
-    starts from the shifted previous solution, primal AND dual -- keep the
+    starts from a primal-feasible point (the shifted previous solution with
+    its multipliers, or the first guess of a safe reference) -- keep the
     initial point (warm_start_init_point), a small barrier parameter and small
     pushes away from the bounds, so IPOPT does not first walk back to the
     central path."""
@@ -36,9 +37,12 @@ def ipopt_options(warm: bool = False, **overrides) -> dict:
     return opts
 
 
-#: IPOPT options of a warm-started MPC solve (see :func:`ipopt_options`)
+#: IPOPT options of a warm-started MPC solve (see :func:`ipopt_options`). mu_init
+#: = 1e-7 <= tol / 10: IPOPT solves ONE barrier problem (with 1e-6 it solved
+#: one at 1e-6, then lowered mu and solved again: ~7 iterations instead of ~3;
+#: docs/mpc.md, "Speed")
 WARM_IPOPT_OPTIONS: dict = {
-    "warm_start_init_point": "yes", "mu_strategy": "monotone", "mu_init": 1e-6,
+    "warm_start_init_point": "yes", "mu_strategy": "monotone", "mu_init": 1e-7,
     "warm_start_bound_push": 1e-8, "warm_start_bound_frac": 1e-8, "warm_start_slack_bound_push": 1e-8,
     "warm_start_slack_bound_frac": 1e-8, "warm_start_mult_bound_push": 1e-8,
     "bound_push": 1e-8, "bound_frac": 1e-8,
@@ -48,72 +52,97 @@ WARM_IPOPT_OPTIONS: dict = {
 class OptiMPC:
     """The belief MPC of ``horizon`` stages installed in a ``casadi.Opti``.
 
-    Decision variables ``V`` (nu, N) inputs; ``X`` (nx, N+1) the states
-    rolled out from them (single shooting);
-    parameters ``s0`` (current state), ``gate`` (2, N), ``ref`` (d + J F, N)
-    (scaled reference of the next means and certificates, :meth:`BeliefMPC.references`), ``p``/``p_t`` (obstacle and target
-    data: change them with ``opti.set_value`` to move obstacles at run time).
+    Decision variables ``V`` (nu, N) inputs and, with ``shooting="multiple"``
+    (the default), the states ``X[:, 1:N]`` (``X`` (nx, N+1): ``X[:, 0]`` is
+    the parameter ``s0``, the current state; ``X[:, N]`` enters no row or
+    cost and stays the expression ``step(X[:, N-1], V[:, N-1])``), tied to
+    the dynamics by ``X[:, k+1] == step(X[:, k], V[:, k])`` -- a banded KKT
+    system. ``shooting="single"``: ``X`` is the
+    rollout of ``V`` (every iterate's covariance is a Kalman posterior, but
+    every stage couples with all earlier ones: the KKT factorisation fills
+    in and an IPOPT iteration costs ~2-3x more; docs/mpc.md, "Speed").
+    Parameters ``s0``, ``gate`` (2, N), ``ref`` (d + J F, N) (scaled
+    reference of the next means and certificates,
+    :meth:`BeliefMPC.references`), ``p``/``p_t`` (obstacle and target data:
+    change them with ``opti.set_value`` to move obstacles at run time).
     Every stage gets ``kit.rows >= kit.lbg`` -- the certificate rows
     included. Pass your own ``opti`` to add constraints or cost terms
     (``extra_cost``) before :meth:`solve`.
 
-    ``warm_duals`` (default): a solve at time t right after one at t - 1
-    starts from that solve's multipliers shifted by one stage, with
-    :data:`WARM_IPOPT_OPTIONS` (the solver is rebuilt once, at the second
-    solve). With the shifted primal plan (:meth:`BeliefMPC.hold` appends a
-    feasible last stage) and a proximal weight ``kit.prox`` > 0 this cuts
-    IPOPT from hundreds of iterations to ~5-10 (docs/mpc.md, "Speed").
+    The IPOPT solver is built once, in the constructor (``expand=True``);
+    :meth:`solve` only sets parameter and initial values. ``warm`` (default):
+    IPOPT's warm-start settings (:data:`WARM_IPOPT_OPTIONS`) from the first
+    solve on -- the first guess (:meth:`BeliefMPC.guess` of a safe reference)
+    is primal feasible, and every later solve starts from the shifted
+    previous plan. ``warm_duals`` (default): a solve at time t right after
+    one at t - 1 also starts from that solve's multipliers shifted by one
+    stage (the last stage's repeated). With a feasible appended stage
+    (:meth:`BeliefMPC.hold`) and a proximal weight ``kit.prox`` > 0 IPOPT
+    needs ~3 iterations a step (docs/mpc.md, "Speed").
     """
 
     def __init__(self, kit: BeliefMPC, horizon: int, opti: ca.Opti | None = None, extra_cost=0,
-                 ipopt: dict | None = None, warm_duals: bool = True) -> None:
-        self.kit, self.N = kit, int(horizon)
+                 ipopt: dict | None = None, warm_duals: bool = True, warm: bool = True,
+                 shooting: str = "multiple") -> None:
+        if shooting not in ("multiple", "single"):
+            raise ValidationError("shooting", f"must be 'multiple' or 'single', got {shooting!r}")
+        self.kit, self.N, self.shooting = kit, int(horizon), shooting
         o = self.opti = ca.Opti() if opti is None else opti
         N = self.N
-        # single shooting: the states are the rollout of the inputs, so every
-        # iterate's covariance is a Kalman posterior (positive definite; the
-        # information term's log det is always defined)
         self.V = o.variable(kit.nu, N)
         self.s0, self.gate, self.ref = o.parameter(kit.nx), o.parameter(2, N), o.parameter(kit.n_ref, N)
         self.p = o.parameter(kit.stage.function.size1_in("p"))
         self.p_t = o.parameter(kit.terminal.function.size1_in("p"))
         rows, cost = kit.rows.map(N), kit.cost.map(N)
-        self.X = ca.horzcat(self.s0, kit.step.mapaccum(N)(self.s0, self.V))
+        if shooting == "multiple" and N > 1:
+            # X[:, 1:N] are variables; X[:, N] enters no row or cost, so it stays the expression
+            self._Xv = o.variable(kit.nx, N - 1)
+            Xs = ca.horzcat(self.s0, self._Xv)
+            self.X = ca.horzcat(Xs, kit.step(Xs[:, N - 1], self.V[:, N - 1]))
+        else:
+            self._Xv = None
+            self.X = ca.horzcat(self.s0, kit.step.mapaccum(N)(self.s0, self.V))
         g = rows(self.X[:, :N], self.V, self.gate, ca.repmat(self.p, 1, N), ca.repmat(self.p_t, 1, N))
         o.subject_to(ca.vec(g) >= np.tile(kit.lbg, N))
+        if self._Xv is not None:           # the dynamics, after all rows (multipliers shift block by block)
+            o.subject_to(ca.vec(kit.step.map(N - 1)(self.X[:, :N - 1], self.V[:, :N - 1]) - self._Xv) == 0)
         o.minimize(ca.sum2(cost(self.X[:, :N], self.V, self.gate, self.ref)) + extra_cost)
         o.set_value(self.p, kit.stage.params())
         o.set_value(self.p_t, kit.terminal.params())
         self._ipopt = dict(ipopt or {})
-        self._warm, self.warm_duals = False, bool(warm_duals)
-        self._set_solver()
+        self.warm, self.warm_duals = bool(warm), bool(warm_duals)
+        o.solver("ipopt", {"expand": True, "print_time": False, "detect_simple_bounds": True},
+                 ipopt_options(warm=self.warm, **self._ipopt))
         self.last_stats: dict = {}
         self._last: tuple[int, np.ndarray] | None = None    # (t, multipliers) of the last solve
 
-    def _set_solver(self) -> None:
-        self.opti.solver("ipopt", {"expand": True, "print_time": False, "detect_simple_bounds": True},
-                         ipopt_options(warm=self._warm, **self._ipopt))
-
     def _warm_duals(self, t: int) -> None:
         """Start from the previous solve's multipliers shifted by one stage
-        (the last stage's repeated); switch IPOPT to its warm settings once."""
+        (the last stage's repeated)."""
         if not self.warm_duals or self._last is None or self._last[0] != t - 1:
             return
-        if not self._warm:
-            self._warm = True
-            self._set_solver()
-        L = self._last[1].reshape(-1, self.N, order="F")
-        self.opti.set_initial(self.opti.lam_g, np.hstack([L[:, 1:], L[:, -1:]]).ravel(order="F"))
+        lam, nr = self._last[1], self.kit.lbg.size * self.N
+        nd = self.kit.nx * (self.N - 1) if self._Xv is not None else 0
+        if lam.size != nr + nd:                        # constraints of the caller's own: no shift
+            return
+        blocks = [lam[:nr].reshape(-1, self.N, order="F")]
+        if nd:
+            blocks.append(lam[nr:].reshape(-1, self.N - 1, order="F"))
+        self.opti.set_initial(self.opti.lam_g, np.concatenate(
+            [np.hstack([L[:, 1:], L[:, -1:]]).ravel(order="F") for L in blocks]))
 
     def solve(self, state: np.ndarray, t: int, steps: int, ref: np.ndarray, guess: np.ndarray) -> np.ndarray:
         """Solve from ``state`` at time t of a run of ``steps``; ``ref`` (d + J F, N)
-        from :meth:`BeliefMPC.references`, ``guess`` (nu, N) inputs. Returns
+        from :meth:`BeliefMPC.references`, ``guess`` (nu, N) inputs (their
+        rollout from ``state`` is the states' initial value). Returns
         the planned inputs (nu, N); raises SolverError if IPOPT fails."""
         o, kit = self.opti, self.kit
         o.set_value(self.s0, state)
         o.set_value(self.gate, kit.gates(t, self.N, steps))
         o.set_value(self.ref, ref)
         o.set_initial(self.V, guess)
+        if self._Xv is not None:
+            o.set_initial(self._Xv, kit.rollout(state, guess)[:, 1:self.N])
         self._warm_duals(t)
         try:
             value = o.solve().value

@@ -82,6 +82,17 @@ class RockitMPC:
         self.ocp, self.sym = rockit_ocp(kit, self.N, ipopt, warm)
         self.last_stats: dict = {}
 
+    def _transcribed(self):
+        """(opti, U, X) of rockit's transcription once it exists (after the
+        first solve), else None; the initial values are then set on the
+        transcribed ``casadi.Opti`` directly."""
+        m = getattr(self.ocp, "_method", None)
+        opti, U, X = (getattr(m, a, None) for a in ("opti", "U", "X"))
+        if not isinstance(opti, ca.Opti) or not isinstance(U, list) or not isinstance(X, list) \
+                or len(U) != self.N or len(X) != self.N + 1:
+            return None
+        return opti, U, X
+
     def solve(self, state: np.ndarray, t: int, steps: int, ref: np.ndarray, guess: np.ndarray) -> np.ndarray:
         """Solve from ``state`` at time t of a run of ``steps`` (arguments as
         :meth:`.OptiMPC.solve`); returns the planned inputs (nu, N)."""
@@ -89,8 +100,17 @@ class RockitMPC:
         ocp.set_value(sym["s0"], np.asarray(state, float))
         ocp.set_value(sym["gate"], kit.gates(t, self.N, steps))
         ocp.set_value(sym["ref"], np.asarray(ref, float))
-        ocp.set_initial(sym["v"], ca.DM(guess))
-        ocp.set_initial(sym["s"], ca.DM(kit.rollout(state, guess)))
+        X = kit.rollout(state, guess)
+        fast = self._transcribed()
+        if fast is None:
+            ocp.set_initial(sym["v"], ca.DM(guess))
+            ocp.set_initial(sym["s"], ca.DM(X))
+        else:      # rockit's set_initial re-hashes the whole problem per grid point (~85 ms a call)
+            opti, U, Xs = fast
+            for k in range(self.N):
+                ca.Opti.set_initial(opti, U[k], guess[:, k])
+            for k in range(self.N + 1):
+                ca.Opti.set_initial(opti, Xs[k], X[:, k])
         try:
             sol = ocp.solve()
             self.converged = True
@@ -100,8 +120,11 @@ class RockitMPC:
             if sol is None:
                 raise SolverError(f"rockit/IPOPT failed: {exc}") from exc
         self.last_stats = dict(sol.stats)
-        V = np.asarray(sol.sample(sym["v"], grid="control")[1], float)
-        V = V.reshape(-1, kit.nu)[:self.N].T
+        if fast is not None and hasattr(sol, "sol"):
+            V = np.asarray(sol.sol.value(ca.hcat(fast[1])), float).reshape(kit.nu, self.N)
+        else:
+            V = np.asarray(sol.sample(sym["v"], grid="control")[1], float)
+            V = V.reshape(-1, kit.nu)[:self.N].T
         if not np.all(np.isfinite(V)):
             raise SolverError(f"rockit/IPOPT failed ({self.last_stats.get('return_status')})")
         return V
