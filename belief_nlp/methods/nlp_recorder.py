@@ -1,4 +1,4 @@
-"""IPOPT's iteration callback: history rows, candidate iterates, budget and stall stops."""
+"""The NLP solvers' iteration callback: history rows, candidate iterates, budget and stall stops."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ __all__ = ["Recorder"]
 
 
 class Recorder(ca.Callback):
-    """IPOPT iteration callback: history, best feasible iterates, progress.
+    """Iteration callback of a CasADi nlpsol: history, best feasible iterates, progress.
 
     One recorder serves every attempt (restart) of a solve; ``begin`` resets
     the per-attempt counter and sets the parameter values."""
@@ -41,7 +41,7 @@ class Recorder(ca.Callback):
         self.zs: list[np.ndarray] = []         # every iterate (for the history's costs and keep_iterates)
         self.pvs: list[np.ndarray] = []        # the parameter of each attempt
         self.best: list[tuple] = []            # min-heap of (-objective, iteration, z): the lowest
-        self.construct("belief_nlp_ipopt_recorder", {})
+        self.construct("belief_nlp_nlp_recorder", {})
 
     def reset(self, keep: int, bar, stall: int) -> None:
         """Forget a previous solve (the recorder lives as long as its solver)."""

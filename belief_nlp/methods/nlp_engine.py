@@ -1,0 +1,343 @@
+"""The shared engine of the NLP methods (CasADi ``nlpsol`` plug-ins): one
+:class:`NLPBackend` per solver file (``ipopt.py``, ``sqp.py``) says how to
+build the solver's options and read its statuses; everything else -- the
+NLP from the model (:mod:`belief_nlp.model.nlp_form`), the two stages, the
+restarts, the exact safety check of every candidate, the history and the
+raw stats -- is here, the same for every solver.
+
+Stages (docs/numerics.md, "IPOPT iterations"):
+
+1. the "logchol" NLP: S_k = L_k L_k^T with L_k,ii = exp(w) >= ``floor`` keeps
+   the iterates off the L = 0 saddle, where every gradient in L vanishes and
+   a minimal-sensing warm start sits;
+2. a polish of at most ``polish`` iterations on the exact "cholesky" NLP from
+   that answer, with the sensing directions held at the floor switched off
+   (:meth:`~belief_nlp.model.nlp_form.NLPProblem.without_sensing`); its
+   answer replaces stage 1's when it converged, is exactly safe and is not
+   costlier.
+
+When a stage stops without converging (iteration share, solver failure, a
+stall of ``stall`` iterations without a lower feasible cost), the solver is
+restarted from the best exactly safe point so far. The solver's last point is
+the answer when it converged and the point is exactly safe; otherwise the
+best exactly safe recorded iterate is (the driver's rule).
+
+History: one record per solver iteration (stages and restarts continue the
+count) with its cost parts; ``accepted`` = satisfies the NLP's constraints to
+1e-6; ``min_margin`` = the smallest NLP margin; ``kalman_gap`` = the largest
+Kalman-equality residual. Stats: ``attempts`` (formulation, return status,
+iterations, restoration iterations, CPU and wall seconds), ``iter_count``,
+``restoration``, ``cpu_time``, ``return_status``, ``polish_status``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import casadi as ca
+import numpy as np
+
+from ..errors import ValidationError
+from ..model import Layout
+from ..model.cache import MemoryCache, problem_key
+from ..model.nlp_form import FORMULATIONS, NLPProblem, build_nlp
+from ..smoother.context import Outcome, SmoothingProblem
+from ..smoother.policy import DEFAULT_POLICY
+from ..smoother.registry import Option
+from ..smoother.result import STATUSES, IterationRecord
+from .nlp_recorder import Recorder
+
+__all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
+
+log = logging.getLogger("belief_nlp.smoother")
+
+_CACHE = MemoryCache(8)
+
+
+class NLPBackend:
+    """How one CasADi ``nlpsol`` plug-in is driven. A solver file subclasses
+    it and sets ``name`` (for results and messages) and ``plugin``."""
+
+    name = "NLP"
+    plugin = ""
+
+    def options(self, solver_options: dict, tol: float, stage: str) -> dict:
+        """The plug-in's options for ``stage`` ("logchol", "cholesky" or
+        "polish"), the user's ``solver_options`` applied last. No iteration
+        limit: the recorder enforces the run's budget."""
+        raise NotImplementedError
+
+    def nlpsol_options(self, opts: dict, log_path: str | None) -> dict:
+        """The ``ca.nlpsol`` options dict around the plug-in's options."""
+        return {self.plugin: opts}
+
+    def return_status(self, stats: dict) -> str:
+        """The solver's own return status from ``solver.stats()``."""
+        return str(stats.get("return_status", "unknown"))
+
+    def map_status(self, raw: str) -> str:
+        """The solver's return status -> one of :data:`STATUSES`."""
+        raise NotImplementedError
+
+    def restoration(self, stats: dict, log_path: str | None, offset: int) -> int:
+        """Restoration (or feasibility-phase) iterations of the last solve."""
+        return 0
+
+    def log_file(self) -> str | None:
+        """A log file the solver writes (None: no log)."""
+        return None
+
+
+def clear_cache() -> None:
+    """Drop every cached NLP / solver instance."""
+    _CACHE.clear()
+
+
+def _log_size(log_path: str | None) -> int:
+    import os
+
+    try:
+        return os.path.getsize(log_path) if log_path else 0
+    except OSError:
+        return 0
+
+
+def _solver(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulation: str, margin: float,
+            regularisation: float, floor: float, candidates: int, cache: bool) -> tuple[NLPProblem, Any, Recorder, str]:
+    """NLP, nlpsol instance and recorder, from the cache when the model and options match."""
+    key = problem_key(problem.model.data, margin,
+                      f"{backend.plugin}:{formulation}:{regularisation}:{floor}:{sorted(opts.items())!r}")
+    entry = _CACHE.get(key) if cache else None
+    if entry is not None:
+        return (*entry, "memory")
+    nlp = build_nlp(problem.model, formulation, margin=margin, regularisation=regularisation, floor=floor)
+    recorder = Recorder(nlp, problem.model.data.alpha, keep=candidates, bar=None, stall=0)
+    recorder.log_path = backend.log_file()
+    try:
+        solver = ca.nlpsol(f"belief_nlp_{backend.plugin}", backend.plugin,
+                           {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
+                           {**backend.nlpsol_options(opts, recorder.log_path), "print_time": False,
+                            "iteration_callback": recorder, "error_on_fail": False, "show_eval_warnings": False})
+    except RuntimeError as exc:  # bad option names or values
+        raise ValidationError("solver_options",
+                              f"{backend.name} refused them: {str(exc).splitlines()[-1][:200]}") from None
+    if cache:
+        _CACHE.put(key, (nlp, solver, recorder))
+    return nlp, solver, recorder, "built"
+
+
+def _safe_points(problem: SmoothingProblem, nlp: NLPProblem, recorder: Recorder, z_end: np.ndarray | None,
+                 converged: bool) -> list[tuple[float, Layout, str, int | None]]:
+    """Exactly safe points among the solver's last point and the recorded feasible
+    iterates, as (cost, point, description, iteration or None for the last
+    point); when the solver converged and its last point is safe, that point alone."""
+    pool = [(None, z_end)] if z_end is not None and np.all(np.isfinite(z_end)) else []
+    pool += [(it, zv) for _, it, zv in recorder.best]
+    found = []
+    for it, zv in pool:
+        try:
+            chk = problem.check(problem.model.tighten(nlp.unpack(zv)))
+        except np.linalg.LinAlgError:
+            continue
+        if not chk.safe:
+            continue
+        where = "the solver's final point" if it is None else f"iterate {it} (the best feasible one)"
+        found.append((problem.model.cost(chk.point)[0], chk.point, where, it))
+        if it is None and converged:
+            return found
+    return found
+
+
+def _record_attempt(problem: SmoothingProblem, nlp: NLPProblem, recorder: Recorder, start: int,
+                    found: list, raw_status: str) -> None:
+    """History records of one attempt's iterations (cost parts in one batch)."""
+    rows, zs = recorder.rows[start:], recorder.zs[start:]
+    if not rows:
+        return
+    D = problem.model.data
+    Z = np.stack(zs, axis=1)
+    ctrls, infos, _ = (np.asarray(v).ravel() for v in nlp.parts.map(Z.shape[1])(Z, recorder.pvs[-1]))
+    safe = {it: z for _, z, _, it in found if it is not None}
+    last = rows[-1][0]
+    final = next((z for _, z, _, it in found if it is None), None)
+    for (it, mmin, viol, dt, kgap), ctrl, info in zip(rows, ctrls, infos):
+        rec = IterationRecord(it, float(ctrl + D.alpha * info), float(ctrl), float(info),
+                              raw_status if it == last else "", dt, 0.0, dt, 1, accepted=viol <= 1e-6,
+                              min_margin=mmin, kalman_gap=kgap)
+        point = final if it == last and final is not None else safe.get(it)
+        problem.record(rec, point if rec.accepted else None)
+
+
+@dataclass
+class _Stage:
+    """What one NLP stage (one formulation, its attempts) ended with."""
+
+    status: str = "not run"              # the solver's own last return status
+    used: int = 0
+    answer: tuple | None = None          # (cost, point, where, None): converged and exactly safe
+    best: tuple | None = None            # lowest-cost exactly safe point seen (cost, point, where)
+    attempts: list = field(default_factory=list)
+    build: str = ""
+    build_time: float = 0.0
+
+
+_STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded", "stalled": "Stalled"}
+
+
+def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, *, formulation: str, opts: dict,
+                 margin: float, regularisation: float, floor: float, candidates: int, cache: bool, start: Layout,
+                 max_iter: int, restarts: int, stall: int, offset: int, bar: Any,
+                 bounds: Callable | None = None) -> _Stage:
+    """The solver on one formulation from ``start``: attempts with restarts
+    from the best exactly safe point (module doc), at most ``max_iter``
+    iterations. ``bounds(nlp, point)`` -> (z0, lbz, ubz) replaces the NLP's
+    own start and bounds."""
+    t_build = time.perf_counter()
+    nlp, solver, recorder, stage.build = _solver(problem, backend, opts, formulation, margin, regularisation, floor,
+                                                 max(int(candidates), 0), cache)
+    stage.build_time = time.perf_counter() - t_build
+    recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0)
+    recorder.offset = offset
+    z_start = start
+    stage.best = (problem.model.cost(start)[0], start, "the stage's start")
+    n_attempts = 0
+    while True:
+        remaining = max_iter - stage.used
+        budget = remaining if n_attempts >= restarts else max(1, remaining - remaining // 3)
+        if problem.out_of_time() or remaining <= 0:
+            stage.status = _STOPS["time_limit" if problem.out_of_time() else "max_iter"]
+            break
+        pv = nlp.anchor(z_start)
+        n_rows = len(recorder.rows)
+        recorder.begin(pv, budget, problem.deadline)
+        t_solve, c_solve, log_at = time.perf_counter(), time.process_time(), _log_size(recorder.log_path)
+        try:
+            x0, lbx, ubx = bounds(nlp, z_start) if bounds else (nlp.pack(z_start), nlp.lbz, nlp.ubz)
+            sol = solver(x0=x0, p=pv, lbx=lbx, ubx=ubx, lbg=nlp.lbg, ubg=nlp.ubg)
+            z_end = np.asarray(sol["x"]).ravel()
+        except RuntimeError as exc:   # CasADi raises on some solver exceptions
+            log.warning("%s raised: %s", backend.name, exc)
+            z_end = None
+        try:
+            st = solver.stats()
+        except RuntimeError:          # some plug-ins have no stats after a failure
+            st = {}
+        raw = _STOPS[recorder.stop_reason] if recorder.stop_reason else backend.return_status(st)
+        stage.status = raw
+        n_it = int(st.get("iter_count", max(recorder.calls - 1, 0)))
+        stage.attempts.append({"formulation": formulation, "return_status": raw, "iter_count": n_it,
+                               "restoration": int(backend.restoration(st, recorder.log_path, log_at)),
+                               "wall_time": time.perf_counter() - t_solve,
+                               "cpu_time": time.process_time() - c_solve})
+        stage.used += n_it
+        n_attempts += 1
+        status = backend.map_status(raw)
+        found = _safe_points(problem, nlp, recorder, z_end, status == "converged")
+        _record_attempt(problem, nlp, recorder, n_rows, found, raw)
+        if status == "converged" and found and found[0][3] is None:
+            stage.answer = found[0]
+            break
+        for cand in found:
+            if cand[0] < stage.best[0]:
+                stage.best = cand[:3]
+        if n_attempts > restarts or status == "time_limit" or stage.used >= max_iter \
+                or stage.best[1] is z_start or problem.stop_requested:
+            break
+        log.info("%s %s after %d iterations; restarting from %s", backend.name, raw, stage.used, stage.best[2])
+        z_start = stage.best[1]
+    return stage
+
+
+def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str = "logchol", floor: float = 1e-2,
+            polish: int = 50, regularisation: float = 1e-4, margin: float = DEFAULT_POLICY.nlp, restarts: int = 1,
+            stall: int = 300, candidates: int = 5, cache: bool = True) -> Outcome:
+    """``backend``'s solver from the problem's start (module doc)."""
+    if problem.out_of_time():                      # the warm start used the budget up
+        return Outcome("time_limit", f"{STATUSES['time_limit']} (before {backend.name} started)", None,
+                       backend.name)
+    opts = backend.options(problem.solver_options, problem.tol, formulation)
+    # the plug-in's own limit is set out of reach (a constant keeps the cache
+    # key stable); the recorder enforces the run's budget; a user's
+    # "max_iter" solver option still caps it
+    max_iter = min(int(opts.get("max_iter", problem.max_iter)), problem.max_iter)
+    bar = problem.progress_bar(backend.name)
+    common = dict(margin=margin, regularisation=regularisation, candidates=candidates, cache=cache, bar=bar,
+                  stall=stall)
+    first = _solve_stage(problem, backend, _Stage(), formulation=formulation, floor=floor, opts=opts,
+                         start=problem.start, max_iter=max_iter, restarts=restarts, offset=0, **common)
+    stages = [first]
+    if formulation == "logchol" and polish and first.answer is not None and first.used < max_iter \
+            and not problem.out_of_time() and not problem.stop_requested:
+        # the floored answer senses >= floor^2 in every direction: switch the
+        # directions held at the floor off and free the rest on the exact
+        # Cholesky NLP (docs/numerics.md, "IPOPT iterations")
+        polish_opts = backend.options(problem.solver_options, problem.tol, "polish")
+        second = _solve_stage(problem, backend, _Stage(), formulation="cholesky", floor=floor, opts=polish_opts,
+                              bounds=lambda nlp, lay: nlp.without_sensing(lay, floor), start=first.answer[1],
+                              max_iter=min(int(polish), max_iter - first.used), restarts=0,
+                              offset=first.used, **common)
+        stages.append(second)
+    if bar is not None:
+        bar.close()
+    return _outcome(problem, backend, stages)
+
+
+def _outcome(problem: SmoothingProblem, backend: NLPBackend, stages: list[_Stage]) -> Outcome:
+    """The run's status, answer and raw stats from its stages."""
+    first, last = stages[0], stages[-1]
+    attempts = [a for s in stages for a in s.attempts]
+    stats: dict[str, Any] = {
+        "build": first.build, "build_time": sum(s.build_time for s in stages), "attempts": attempts,
+        "return_status": first.status, "iter_count": sum(s.used for s in stages),
+        "restoration": sum(a["restoration"] for a in attempts),
+        "cpu_time": sum(a["cpu_time"] for a in attempts)}
+    status = backend.map_status(first.status)
+    message = f"{backend.name} returned {first.status} after {first.used} iterations"
+    if len(first.attempts) > 1:
+        message += f" in {len(first.attempts)} attempts ({', '.join(a['return_status'] for a in first.attempts)})"
+    answer = first.answer
+    if len(stages) > 1:
+        stats["polish_status"] = last.status
+        if last.answer is not None and last.answer[0] <= first.answer[0]:
+            answer = last.answer
+            message += f"; polished on the exact Cholesky NLP in {last.used} iterations"
+        else:
+            message += f"; polish ended {last.status} after {last.used} iterations (not lower; not used)"
+    if status == "converged" and answer is None:
+        status = "infeasible_iterate"
+        message += f"; its last point failed the exact safety check ({STATUSES[status]})"
+    elif status != "converged":
+        message += f" ({STATUSES[status]})"
+    if problem.stop_requested and status != "converged":
+        status, message = "stopped", STATUSES["stopped"]
+    return Outcome(status, message, answer[1] if answer else None, backend.name, stats)
+
+
+def _nonneg(v: Any) -> str | None:
+    return None if isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0 else "must be a number >= 0"
+
+
+def _count(v: Any) -> str | None:
+    return None if isinstance(v, int) and not isinstance(v, bool) and v >= 0 else "must be an integer >= 0"
+
+
+def nlp_options(solver: str) -> dict[str, Option]:
+    """The options every NLP method takes (the keywords of :func:`run_nlp`)."""
+    return {
+        "formulation": Option("logchol", f"NLP variables: one of {FORMULATIONS}",
+                              lambda v: None if v in FORMULATIONS else f"must be one of {FORMULATIONS}"),
+        "floor": Option(1e-2, "smallest diagonal entry of L in the 'logchol' stage (scaled units)",
+                        lambda v: None if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0
+                        else "must be a number > 0"),
+        "polish": Option(50, "iteration cap of the polish after the 'logchol' stage (0: none)", _count),
+        "regularisation": Option(1e-4, "weight of the certificates' proximal term", _nonneg),
+        "margin": Option(DEFAULT_POLICY.nlp, "relative clearance margin kept in the NLP's collision rows", _nonneg),
+        "restarts": Option(1, "restarts from the best safe point after an unconverged stop", _count),
+        "stall": Option(300, "iterations without a lower feasible cost that end an attempt", _count),
+        "candidates": Option(5, "feasible iterates kept as fallback candidates", _count),
+        "cache": Option(True, f"reuse the NLP and {solver} instance of an earlier call with the same model",
+                        lambda v: None if isinstance(v, bool) else "must be True or False"),
+    }
