@@ -23,11 +23,11 @@ def _toy_registered():
 
 def test_the_registry_lists_the_builtins_and_the_toy_method():
     names = bn.available_methods()
-    assert names[:3] == ["auto", "ccp", "ipopt"] and "sensing_trim" in names      # the default first
+    assert names[:4] == ["auto", "ccp", "ipopt", "sqp"] and "sensing_trim" in names      # the default first
     assert bn.get_method("ccp").max_iter == 50 and bn.get_method("ipopt").max_iter == 3000
 
 
-@pytest.mark.parametrize("name", ["ccp", "ipopt", "auto", "sensing_trim"])
+@pytest.mark.parametrize("name", ["ccp", "ipopt", "auto", "sqp", "sensing_trim"])
 def test_conformance(name):
     check_method(name)
 

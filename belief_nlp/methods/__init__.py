@@ -1,6 +1,7 @@
 """Built-in smoothing methods; importing a module registers it (one file per method)."""
 
-from . import ccp, ipopt  # noqa: F401, I001 - registration order: ccp, ipopt, auto
+from . import ccp, ipopt  # noqa: F401, I001 - registration order: ccp, ipopt, auto, sqp
 from . import auto  # noqa: F401
+from . import sqp  # noqa: F401
 
-__all__ = ["auto", "ccp", "ipopt"]
+__all__ = ["auto", "ccp", "ipopt", "sqp"]

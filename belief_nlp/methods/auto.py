@@ -44,7 +44,7 @@ def _totals(stats: dict, answer: str) -> dict:
     stages = [stats[k] for k in ("ipopt", "ccp") if k in stats]
     stats["iter_count"] = int(sum(s.get("iter_count", 0) for s in stages))
     stats["cpu_time"] = float(sum(s.get("cpu_time", 0.0) for s in stages))
-    stats["restoration"] = int(stats["ipopt"].get("restoration", 0))
+    stats["restoration"] = stats["ipopt"].get("restoration")
     stats["return_status"] = stats.get(answer, {}).get("return_status", "")
     return stats
 

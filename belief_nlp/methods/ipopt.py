@@ -15,7 +15,6 @@ import tempfile
 from typing import Any
 
 from ..smoother.context import Outcome, SmoothingProblem
-from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Method, register
 from .nlp_engine import NLPBackend, clear_cache, nlp_options, run_nlp
 
@@ -60,15 +59,8 @@ class IpoptBackend(NLPBackend):
     name = "IPOPT"
     plugin = "ipopt"
 
-    def options(self, solver_options: dict, tol: float, stage: str) -> dict:
-        opts = dict(DEFAULT_IPOPT_OPTIONS)
-        opts.update(LOGCHOL_IPOPT_OPTIONS if stage == "logchol" else POLISH_IPOPT_OPTIONS if stage == "polish"
-                    else {})
-        opts["max_iter"] = 10**7
-        opts["tol"] = float(tol)
-        for key, value in solver_options.items():
-            opts[key[len("ipopt."):] if key.startswith("ipopt.") else key] = value
-        return opts
+    defaults = DEFAULT_IPOPT_OPTIONS
+    stage_options = {"logchol": LOGCHOL_IPOPT_OPTIONS, "polish": POLISH_IPOPT_OPTIONS}
 
     def nlpsol_options(self, opts: dict, log_path: str | None) -> dict:
         return {"ipopt": {**opts, "output_file": log_path, "file_print_level": 5}}
@@ -99,13 +91,10 @@ class IpoptBackend(NLPBackend):
 IPOPT = IpoptBackend()
 
 
-def run(problem: SmoothingProblem, *, formulation: str = "logchol", floor: float = 1e-2, polish: int = 50,
-        regularisation: float = 1e-4, margin: float = DEFAULT_POLICY.nlp, restarts: int = 1, stall: int = 300,
-        candidates: int = 5, cache: bool = True) -> Outcome:
-    """IPOPT from the problem's start (options in :data:`METHOD`)."""
-    return run_nlp(problem, IPOPT, formulation=formulation, floor=floor, polish=polish,
-                   regularisation=regularisation, margin=margin, restarts=restarts, stall=stall,
-                   candidates=candidates, cache=cache)
+def run(problem: SmoothingProblem, **options: Any) -> Outcome:
+    """IPOPT from the problem's start; ``options`` as in :data:`METHOD`
+    (the driver passes every one, defaults filled in)."""
+    return run_nlp(problem, IPOPT, **options)
 
 
 METHOD = register(Method(

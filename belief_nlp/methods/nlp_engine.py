@@ -64,11 +64,28 @@ class NLPBackend:
     name = "NLP"
     plugin = ""
 
+    #: the plug-in's options unless the user's override them; per stage
+    #: ("logchol", "cholesky", "polish") changes on top of them
+    defaults: dict = {}
+    stage_options: dict = {}
+    #: names of the plug-in's own iteration limit and tolerance options
+    limit_key = "max_iter"
+    tol_key = "tol"
+
     def options(self, solver_options: dict, tol: float, stage: str) -> dict:
-        """The plug-in's options for ``stage`` ("logchol", "cholesky" or
-        "polish"), the user's ``solver_options`` applied last. No iteration
-        limit: the recorder enforces the run's budget."""
-        raise NotImplementedError
+        """The plug-in's options for ``stage``, the user's ``solver_options``
+        (with or without the "<plugin>." prefix) applied last. The plug-in's
+        own limit is set out of reach: the recorder enforces the run's budget."""
+        opts = {**self.defaults, **self.stage_options.get(stage, {}), self.limit_key: 10**7, self.tol_key: float(tol)}
+        prefix = self.plugin + "."
+        for key, value in solver_options.items():
+            opts[key[len(prefix):] if key.startswith(prefix) else key] = value
+        return opts
+
+    def check_options(self, opts: dict) -> str | None:
+        """What is wrong with the plug-in's options (None: fine). Plug-ins that
+        validate their options when built (IPOPT) need nothing here."""
+        return None
 
     def nlpsol_options(self, opts: dict, log_path: str | None) -> dict:
         """The ``ca.nlpsol`` options dict around the plug-in's options."""
@@ -82,9 +99,10 @@ class NLPBackend:
         """The solver's return status -> one of :data:`STATUSES`."""
         raise NotImplementedError
 
-    def restoration(self, stats: dict, log_path: str | None, offset: int) -> int:
-        """Restoration (or feasibility-phase) iterations of the last solve."""
-        return 0
+    def restoration(self, stats: dict, log_path: str | None, offset: int) -> int | None:
+        """Restoration (or feasibility-phase) iterations of the last solve;
+        None when the solver does not report them."""
+        return None
 
     def log_file(self) -> str | None:
         """A log file the solver writes (None: no log)."""
@@ -142,6 +160,11 @@ def _safe_points(problem: SmoothingProblem, nlp: NLPProblem, recorder: Recorder,
             chk = problem.check(problem.model.tighten(nlp.unpack(zv)))
         except np.linalg.LinAlgError:
             continue
+        if not chk.safe and it is None:
+            # the last point of an unconverged run often sits ~1e-6 outside
+            # (a polish next to a constraint it cannot quite meet): the
+            # shared repair adds a little sensing when that makes it safe
+            chk = problem.repair(chk) or chk
         if not chk.safe:
             continue
         where = "the solver's final point" if it is None else f"iterate {it} (the best feasible one)"
@@ -229,7 +252,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         stage.status = raw
         n_it = int(st.get("iter_count", max(recorder.calls - 1, 0)))
         stage.attempts.append({"formulation": formulation, "return_status": raw, "iter_count": n_it,
-                               "restoration": int(backend.restoration(st, recorder.log_path, log_at)),
+                               "restoration": backend.restoration(st, recorder.log_path, log_at),
                                "wall_time": time.perf_counter() - t_solve,
                                "cpu_time": time.process_time() - c_solve})
         stage.used += n_it
@@ -259,10 +282,13 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         return Outcome("time_limit", f"{STATUSES['time_limit']} (before {backend.name} started)", None,
                        backend.name)
     opts = backend.options(problem.solver_options, problem.tol, formulation)
+    bad = backend.check_options(opts)
+    if bad:
+        raise ValidationError("solver_options", bad)
     # the plug-in's own limit is set out of reach (a constant keeps the cache
     # key stable); the recorder enforces the run's budget; a user's
     # "max_iter" solver option still caps it
-    max_iter = min(int(opts.get("max_iter", problem.max_iter)), problem.max_iter)
+    max_iter = min(int(opts.get(backend.limit_key, problem.max_iter)), problem.max_iter)
     bar = problem.progress_bar(backend.name)
     common = dict(margin=margin, regularisation=regularisation, candidates=candidates, cache=cache, bar=bar,
                   stall=stall)
@@ -292,7 +318,8 @@ def _outcome(problem: SmoothingProblem, backend: NLPBackend, stages: list[_Stage
     stats: dict[str, Any] = {
         "build": first.build, "build_time": sum(s.build_time for s in stages), "attempts": attempts,
         "return_status": first.status, "iter_count": sum(s.used for s in stages),
-        "restoration": sum(a["restoration"] for a in attempts),
+        "restoration": None if any(a["restoration"] is None for a in attempts)
+        else sum(a["restoration"] for a in attempts),
         "cpu_time": sum(a["cpu_time"] for a in attempts)}
     status = backend.map_status(first.status)
     message = f"{backend.name} returned {first.status} after {first.used} iterations"
@@ -304,6 +331,12 @@ def _outcome(problem: SmoothingProblem, backend: NLPBackend, stages: list[_Stage
         if last.answer is not None and last.answer[0] <= first.answer[0]:
             answer = last.answer
             message += f"; polished on the exact Cholesky NLP in {last.used} iterations"
+        elif last.best is not None and last.best[0] < first.answer[0]:
+            # unconverged (often ~1e-6 short of an equality it cannot quite
+            # meet), yet an exactly safe point below stage 1's answer
+            answer = (*last.best, None)
+            message += (f"; polish ended {last.status} after {last.used} iterations, its best exactly safe point "
+                        f"({last.best[2]}) is used")
         else:
             message += f"; polish ended {last.status} after {last.used} iterations (not lower; not used)"
     if status == "converged" and answer is None:
