@@ -66,6 +66,22 @@ def test_scenario_and_belief_path_figures(sc, tmp_path):
     _assert_real_image(out)
 
 
+def test_title_cost_uses_the_given_alpha(sc, tmp_path):
+    path = _path(sc)
+    alpha = 10 * sc.alpha + 1.0  # a path smoothed at another alpha than the scenario's
+    at_sc, at_alpha = (f"{path.steering_cost(a):.4g}" for a in (sc.alpha, alpha))
+    assert at_sc != at_alpha
+    fig, ax = bp.plot_belief_path(sc, path, title=True, alpha=alpha)
+    assert f"cost = {at_alpha}" in ax.get_title() and f"alpha = {alpha:g}" in ax.get_title()
+    fig, ax = bp.plot_belief_path(sc, path, title=True)  # default: the scenario's alpha, title as before
+    assert ax.get_title().endswith(f"cost = {at_sc}")
+    fig, ax = bp.plot_belief_path(sc, path, title=True, cost=1.25, alpha=alpha)  # cost= wins
+    assert "cost = 1.25" in ax.get_title()
+    fig, ax = plt.subplots()  # the GIF's frame titles follow the same alpha
+    bp.animate_smoothing(sc, [path], tmp_path / "a.gif", dpi=30, ax=ax, alpha=alpha)
+    assert ax.get_title() == f"CCP iteration 0: cost {path.steering_cost(alpha):.5g}"
+
+
 def _independent_semi_axes(P, chi2):
     """Semi-axes via the closed-form eigenvalues of a symmetric 2x2 matrix."""
     a, b, d = P[0, 0], P[0, 1], P[1, 1]
