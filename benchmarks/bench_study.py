@@ -38,7 +38,7 @@ HERE = Path(__file__).resolve().parent / "results"
 def _study(maps: int, seeds: int, methods: list[str], n_nodes: int = 100) -> Study:
     return Study(name="bench", scenarios=["paper-multi", f"random-polygons:{maps}"], seeds=list(range(seeds)),
                  alpha=[0.1, 1.0], K=[12], methods=methods, planner={"n_nodes": n_nodes},
-                 solver={"ccp": {"max_iter": 3}, "ipopt": {"max_iter": 30}})
+                 solver={m: {"max_iter": 3 if m == "ccp" else 30} for m in methods if m != "none"})
 
 
 def _timed_run(study: Study, workers: int) -> dict:
