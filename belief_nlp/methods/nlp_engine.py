@@ -33,6 +33,7 @@ iterations, restoration iterations, CPU and wall seconds), ``iter_count``,
 from __future__ import annotations
 
 import logging
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -115,8 +116,6 @@ def clear_cache() -> None:
 
 
 def _log_size(log_path: str | None) -> int:
-    import os
-
     try:
         return os.path.getsize(log_path) if log_path else 0
     except OSError:
@@ -126,8 +125,11 @@ def _log_size(log_path: str | None) -> int:
 def _solver(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulation: str, margin: float,
             regularisation: float, floor: float, candidates: int, cache: bool) -> tuple[NLPProblem, Any, Recorder, str]:
     """NLP, nlpsol instance and recorder, from the cache when the model and options match."""
+    # the floor shapes only the "logchol" NLP: it stays out of the other
+    # formulations' keys (no second build of an identical NLP)
+    floor_key = floor if formulation == "logchol" else None
     key = problem_key(problem.model.data, margin,
-                      f"{backend.plugin}:{formulation}:{regularisation}:{floor}:{sorted(opts.items())!r}")
+                      f"{backend.plugin}:{formulation}:{regularisation}:{floor_key}:{sorted(opts.items())!r}")
     entry = _CACHE.get(key) if cache else None
     if entry is not None:
         return (*entry, "memory")

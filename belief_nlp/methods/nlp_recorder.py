@@ -34,6 +34,7 @@ class Recorder(ca.Callback):
         self.deadline = None
         self.stop_reason = ""
         self.stall = stall
+        self.log_path: str | None = None       # the solver's log file, if its backend writes one
         self.best_cost = np.inf
         self.best_it = 0
         self.t_last = time.perf_counter()
