@@ -8,6 +8,7 @@ independently. See README.md for a tour and docs/architecture.md for the map.
 from __future__ import annotations
 
 from . import belief, geometry
+from ._version import __version__
 from .errors import (BeliefNLPError, InfeasibleStartError, ScenarioFileError, SolverError,
                      ValidationError)
 from .path import BeliefPath
@@ -17,7 +18,8 @@ from .verify import VerificationReport, verify
 from .smoother import (DEFAULT_METHOD, STATUSES, IterationRecord, Method, Option, Outcome, SmoothResult,
                        SmoothingProblem, WarmStart, available_methods, get_method, smooth, warm_start)
 from .smoother import register as register_method
-from .methods.ccp import ccp_subproblem
+from . import methods  # noqa: F401 - importing registers the built-in methods
+from .methods.ccp import ccp_subproblem, ccp_subproblem_path
 from .planner import IGRRTStar, PlanResult, plan
 from .compare import compare, records_to_table
 from .study.records import load_records
@@ -33,7 +35,6 @@ def __getattr__(name: str):
         return importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module 'belief_nlp' has no attribute {name!r}")
 
-__version__ = "0.1.0"
 
 __all__ = [
     "BeliefNLPError",
@@ -45,6 +46,7 @@ __all__ = [
     "SmoothingProblem",
     "available_methods",
     "ccp_subproblem",
+    "ccp_subproblem_path",
     "get_method",
     "register_method",
     "BeliefPath",

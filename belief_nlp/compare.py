@@ -91,11 +91,12 @@ def compare(scenario: Scenario | str, path: BeliefPath | WarmStart, methods: Ite
     list of dict, one per method, in ``methods`` order (keys: :data:`RECORD_KEYS`,
     described in the module docstring).
     """
-    from .smoother.driver import _path, smooth
+    from .inputs import as_path
+    from .smoother.driver import smooth
 
     if isinstance(scenario, str):
         scenario = load_scenario(scenario)
-    path = _path(path)
+    path = as_path(path)
     methods = list(available_methods() if methods is None else methods)
     if not methods:
         raise ValidationError("methods", "give at least one method")

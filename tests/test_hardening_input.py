@@ -68,6 +68,18 @@ def test_deeply_nested_path_and_result_files(tmp_path, loader):
     raises_fast(lambda: loader(f), "path", "nested", exc=ScenarioFileError)
 
 
+@pytest.mark.parametrize("text", [NESTED, "[" * 100_000 + "]" * 100_000, '{"x": [1'])
+def test_cli_path_file_nested_or_malformed_exits_2_with_one_line(tmp_path, capsys, text):
+    """Every bad --path file is bad input: exit 2, one line naming --path, no traceback."""
+    from belief_nlp.cli import main
+
+    f = tmp_path / "deep.json"
+    f.write_text(text)
+    assert main(["smooth", "paper-multi", "--path", str(f), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--path" in err[0] and "Traceback" not in err[0]
+
+
 @pytest.mark.parametrize("suffix, text", [(".json", '{"alpha": ' + "7" * 5000 + "}"),
                                           (".toml", "alpha = " + "7" * 5000)])
 def test_5000_digit_integer(tmp_path, suffix, text):

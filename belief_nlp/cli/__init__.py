@@ -52,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description=__doc__.split("Every subcommand")[0].strip(),
         epilog="Exit codes: 0 success, 2 bad input, 3 planning or solving failed.\n\n"
                "Start with:\n  belief-nlp demo --out demo_out\n  belief-nlp COMMAND --help")
-    from .. import __version__
+    from .._version import __version__
 
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)

@@ -5,12 +5,12 @@ one-line messages."""
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 from pathlib import Path
 from typing import Callable
 
+from .._limits import load_json
 from ..errors import ValidationError
 from ..smoother.registry import DEFAULT_METHOD  # noqa: F401 - the CLI's --method default
 
@@ -124,10 +124,7 @@ def _load_input_path(file: Path):
         if "header" in names:
             return _path_of_plan(_plan_result_cls().load(file), file)
         return BeliefPath.load(file), {"source": str(file), "kind": "path"}
-    try:
-        data = json.loads(file.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValidationError("--path", f"{file}: malformed JSON: {exc}") from None
+    data = load_json(file, "--path")          # size, nesting and syntax limits: our own error, one line
     if isinstance(data, dict) and str(data.get("format", "")).startswith("belief_nlp.PlanResult"):
         return _path_of_plan(_plan_result_cls().from_dict(data), file)
     if isinstance(data, dict) and "path" in data and "x" not in data:

@@ -7,11 +7,15 @@ answer's priors are re-derived by the Kalman recursion (Lemma 2), the point
 is checked exactly by the driver's shared check, and taken when it is safe
 and does not raise the cost.
 
-Guarantees: every accepted iterate is exactly safe; the cost never increases
-(a step that would raise it by more than ``monotone_tol`` relative ends the
-run with status "non_monotone"); a failed subproblem is retried once with
-other solver settings where the solver has them, then the run ends
-"solver_failed" with the best iterate.
+Guarantees: every accepted iterate is exactly safe; the cost never
+increases. A step is solved along a cascade of conic solvers and settings
+(:func:`solver_cascade`): a failed or inaccurate solve, and an answer that
+the exact check refuses or that raises the cost by more than
+``monotone_tol`` relative (the exact step is feasible and monotone, so that
+is solver inaccuracy), go on to the next entry. Only when every entry fails
+does the run end "solver_failed" (no answer), "infeasible_iterate" or
+"non_monotone" (answers, all refused), with the best iterate;
+``stats["steps"]`` says which solver answered each step.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import ValidationError
+from ..inputs import as_path, as_scenario
 from ..model import BeliefModel, Layout
 from ..model.cache import MEMORY, DiskCache, problem_key
 from ..model.cvxpy_form import CompiledProblem, compile_problem
@@ -33,27 +38,49 @@ from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Method, Option, register
 from ..smoother.result import STATUSES, IterationRecord
 
-__all__ = ["run", "compiled_step", "ccp_subproblem", "usable_solvers", "initial_rho"]
+__all__ = ["run", "compiled_step", "ccp_subproblem", "ccp_subproblem_path", "solver_cascade", "usable_solvers",
+           "initial_rho"]
 
 log = logging.getLogger("belief_nlp.smoother")
 
 CHI2_MARGIN = DEFAULT_POLICY.conic      # every collision/containment row of the step asks chi2 (1 + this)
 
-# Clarabel: equilibration off by default -- on paper-multi (K = 5..20, both
-# alphas) it ended 65 of 174 subproblems InsufficientProgress, 0 of 110
-# without (docs/numerics.md). The retry turns it on, with more iterations and
-# stronger regularisation: a different path through the same problem.
+# The step's solver cascade (docs/numerics.md, "CCP solver cascade"). A step
+# takes the first answer a solver reports optimal; an inaccurate answer is
+# kept while the cheaper entries are tried, and taken if none is optimal (the
+# exact check and the monotone test still decide); an answer they refuse
+# (solver inaccuracy: the exact step is monotone and feasible) sends the
+# step on to the next entry (_StepAnswers). Entries: the chosen solver with the
+# library's settings (and the user's solver_options), the same solver with
+# its own defaults, Clarabel with its defaults, SCS at high accuracy, then any
+# other installed solver able to take the step, with its defaults.
 #
-# Chordal decomposition and presolve off: the PSD cones are 2x2 to 6x6 (nothing
-# to decompose), and with both off Clarabel accepts data updates, so CVXPY
-# re-uses one solver object across iterations (``warm_start=True`` below)
-# instead of building a new one (~10 % of an iteration at K = 20).
+# Clarabel's library settings: chordal decomposition and presolve off (the PSD
+# cones are 2x2 to 6x6, nothing to decompose; with both off Clarabel accepts
+# data updates, so CVXPY re-uses one solver object across iterations,
+# ``warm_start=True``), equilibration off (measured in benchmarks/bench_ccp.py).
 SOLVER_DEFAULTS = {"CLARABEL": {"equilibrate_enable": False, "chordal_decomposition_enable": False,
                                 "presolve_enable": False}}
+HIGH_ACCURACY = {"SCS": {"eps_abs": 1e-7, "eps_rel": 1e-7, "max_iters": 100_000}}
 REUSE = {"CLARABEL"}
 TIME_LIMIT_OPTION = {"CLARABEL": "time_limit", "SCS": "time_limit_secs"}
-SOLVER_RETRY = {"CLARABEL": {"equilibrate_enable": True, "max_iter": 400, "static_regularization_constant": 1e-7},
-                "SCS": {"max_iters": 50_000}}
+
+
+def solver_cascade(solver: str, options: dict | None = None) -> list[tuple[str, str, dict]]:
+    """The CCP step's cascade for ``solver``: [(solver, label, settings), ...]
+    (see the comment above; installed solvers only)."""
+    usable = usable_solvers()
+    out = [(solver, "library" if solver in SOLVER_DEFAULTS else "defaults",
+            {**SOLVER_DEFAULTS.get(solver, {}), **(options or {})})]
+    if solver in SOLVER_DEFAULTS:
+        out.append((solver, "defaults", {}))
+    for name, label, opts in (("CLARABEL", "defaults", {}), ("SCS", "high accuracy", HIGH_ACCURACY["SCS"])):
+        if name in usable and not any(n == name and lab == label for n, lab, _ in out):
+            out.append((name, label, dict(opts)))
+    for name in usable:
+        if all(n != name for n, _, _ in out):
+            out.append((name, "defaults", {}))
+    return out
 
 
 def usable_solvers() -> list[str]:
@@ -141,16 +168,14 @@ def _adapt_rho(model: BeliefModel, z: Layout, z_new: Layout, rho_s: np.ndarray, 
     return out
 
 
-def _solve(step: CompiledProblem, solver: str, options: dict, retry: bool,
+def _solve(step: CompiledProblem, solver: str, options: dict,
            time_left: float | None = None) -> tuple[str, np.ndarray | None, float, int]:
+    """Solve the step with exactly these settings: (status, z or None, solver time, iterations)."""
     import cvxpy as cp
 
-    opts = dict(SOLVER_DEFAULTS.get(solver, {}))
-    if retry:
-        opts.update(SOLVER_RETRY[solver])
+    opts = dict(options)
     if time_left is not None and solver in TIME_LIMIT_OPTION:     # the run's budget bounds one solve too
         opts[TIME_LIMIT_OPTION[solver]] = max(float(time_left), 1e-3)
-    opts.update(options)
     try:
         with warnings.catch_warnings():       # "may be inaccurate": the status says so, and the exact check decides
             warnings.simplefilter("ignore", UserWarning)
@@ -162,6 +187,51 @@ def _solve(step: CompiledProblem, solver: str, options: dict, retry: bool,
     ok = status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) and step.z.value is not None
     return _checked(status, np.asarray(step.z.value, float) if ok else None, float(st.solve_time or 0.0),
                     int(st.num_iters or 0), step)
+
+
+class _StepAnswers:
+    """The answers of one CCP step along the cascade, most trusted first.
+
+    Solves lazily: an answer reported optimal is returned at once; one
+    reported inaccurate waits until the interior-point entries of the cascade
+    (Clarabel's, ~0.1-0.5 s each) are spent, and is returned before the
+    first-order and other solvers are tried (SCS at high accuracy takes 10-80 s
+    on a K = 20 step). Each solve is recorded in ``attempts``."""
+
+    CHEAP = {"CLARABEL"}
+
+    def __init__(self, step: CompiledProblem, cascade: list, problem: SmoothingProblem, fail: bool = False):
+        self.step, self.cascade, self.problem, self.fail = step, cascade, problem, fail
+        self.pos = 0
+        self.inaccurate: list = []
+        self.attempts: list[dict] = []
+        self.solve_time, self.iterations = 0.0, 0
+
+    def next(self) -> tuple[str, str, np.ndarray] | None:
+        """(solver label, status, z) of the next answer, or None when the cascade is spent."""
+        import cvxpy as cp
+
+        while True:
+            more = self.pos < len(self.cascade) and not self.problem.out_of_time()
+            if more and (self.cascade[self.pos][0] in self.CHEAP or not self.inaccurate):
+                solver, label, opts = self.cascade[self.pos]
+                self.pos += 1
+                if self.fail:                                   # injected fault (tests)
+                    status, zv, t, n = "injected failure", None, 0.0, 0
+                else:
+                    status, zv, t, n = _solve(self.step, solver, opts, self.problem.time_left())
+                self.solve_time, self.iterations = self.solve_time + t, self.iterations + n
+                self.attempts.append({"solver": solver, "settings": label, "status": status, "solve_time": t,
+                                      "iterations": n})
+                if zv is None:
+                    continue
+                if status == cp.OPTIMAL:
+                    return f"{solver} ({label})", status, zv
+                self.inaccurate.append((f"{solver} ({label})", status, zv))
+            elif self.inaccurate:
+                return self.inaccurate.pop(0)
+            else:
+                return None
 
 
 def _checked(status: str, zv: np.ndarray | None, t: float, n: int, step: CompiledProblem):
@@ -201,8 +271,10 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     bar = problem.progress_bar("CCP")
     # the same raw keys as the NLP methods: return_status (the last subproblem's),
     # iter_count (CCP steps), cpu_time (this process, the run's steps)
+    # steps: per iteration, the solver (and settings) whose answer was taken and every attempt
     stats = {"compile": origin, "build_time": build_time, "solver_iterations": 0, "return_status": "",
-             "iter_count": 0, "solve_time": 0.0, "cpu_time": 0.0}
+             "iter_count": 0, "solve_time": 0.0, "cpu_time": 0.0, "steps": []}
+    cascade = solver_cascade(solver, problem.solver_options)
     cpu0 = time.process_time()
     for it in range(first, problem.max_iter + 1):
         if problem.out_of_time():
@@ -215,62 +287,63 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
             if extra:
                 step = step.with_constraints(extra)
                 step.set_point(z, rho_s, rho_e)
-        z_new, kgap, sstat, stime, sit = None, float("nan"), "", 0.0, 0
-        for retry in (False, True):
-            if retry and (solver not in SOLVER_RETRY or problem.out_of_time()):
-                break
-            if _fail_at is not None and it >= _fail_at:       # injected fault (tests)
-                sstat, zv, st, n = "injected failure", None, 0.0, 0
+        answers = _StepAnswers(step, cascade, problem, fail=_fail_at is not None and it >= _fail_at)
+        taken, refused = None, None
+        while (ans := answers.next()) is not None:
+            name, sstat, zv = ans
+            try:
+                z_raw = step.layout.extract(zv, z)
+                kgap = model.kalman_relative_gap(z_raw)
+                z_new = model.tighten(z_raw)
+            except (np.linalg.LinAlgError, ValueError, FloatingPointError):  # degenerate: try the next answer
+                answers.attempts[-1]["status"] += " (degenerate answer)"
+                continue
+            chk = problem.check(z_new)
+            if not chk.safe:
+                chk = problem.repair(chk) or chk
+                sstat = f"{sstat}+repaired" if chk.safe else sstat
+            c_new, ctrl, info = model.cost(chk.point)
+            if not chk.safe:
+                refused = ("infeasible_iterate", name, sstat, chk, c_new, ctrl, info, kgap,
+                           f"clearance margin {chk.margin:.3g} and target margin {chk.target:.3g}")
+            elif not c_new <= cost * (1 + monotone_tol) + 1e-12:     # NaN fails too
+                refused = ("non_monotone", name, sstat, chk, c_new, ctrl, info, kgap,
+                           f"cost {cost:.8g} -> {c_new:.8g}")
             else:
-                sstat, zv, st, n = _solve(step, solver, problem.solver_options, retry, problem.time_left())
-            stime, sit = stime + st, sit + n
-            if zv is not None:
-                try:
-                    z_raw = step.layout.extract(zv, z)
-                    kgap = model.kalman_relative_gap(z_raw)
-                    z_new = model.tighten(z_raw)
-                except (np.linalg.LinAlgError, ValueError, FloatingPointError):  # degenerate: a failed step
-                    sstat, z_new = f"{sstat} (degenerate answer)", None
-            if z_new is not None:
+                taken = (name, sstat, chk, c_new, ctrl, info, kgap)
                 break
-            log.warning("CCP iteration %d: subproblem %s%s", it, sstat, "" if retry else "; retrying")
+            log.warning("CCP iteration %d: the answer of %s is refused (%s); solving more accurately",
+                        it, name, refused[-1])
+        stime, sit = answers.solve_time, answers.iterations
         stats["solver_iterations"] += sit
         stats["iter_count"] += 1
         stats["solve_time"] += stime
-        stats["return_status"] = sstat
-        if origin == "compiled" and disk is not None and z_new is not None and it == 1 and not step.user:
+        stats["steps"].append({"iteration": it, "solver": taken[0] if taken else None, "attempts": answers.attempts})
+        last = answers.attempts[-1]["status"] if answers.attempts else ""
+        stats["return_status"] = taken[1] if taken else last
+        if origin == "compiled" and disk is not None and taken is not None and it == 1 and not step.user:
             disk.save(problem_key(D, CHI2_MARGIN, solver), step)
-        if z_new is None:
-            problem.record(IterationRecord(it, np.nan, np.nan, np.nan, sstat, stime, 0.0,
+        if taken is None and refused is None:
+            problem.record(IterationRecord(it, np.nan, np.nan, np.nan, last, stime, 0.0,
                                            time.perf_counter() - t_it, sit, accepted=False))
             if problem.out_of_time():            # the solve was cut by the run's time limit
                 status, message = "time_limit", f"{STATUSES['time_limit']} (during iteration {it})"
             else:
+                tried = ", ".join(f"{a['solver']} ({a['settings']}): {a['status']}" for a in answers.attempts)
                 status, message = ("solver_failed",
-                                   f"{STATUSES['solver_failed']}: solver status {sstat} at iteration {it}")
+                                   f"{STATUSES['solver_failed']}: solver status {last} at iteration {it} "
+                                   f"(tried {tried})")
             break
-        chk = problem.check(z_new)
-        if not chk.safe:
-            chk = problem.repair(chk) or chk
-            sstat = f"{sstat}+repaired" if chk.safe else sstat
-        c_new, ctrl, info = model.cost(chk.point)
-        rec = IterationRecord(it, c_new, ctrl, info, sstat, stime, 0.0, 0.0, sit, accepted=chk.safe,
-                              min_margin=chk.margin, kalman_gap=kgap)
-        if not chk.safe:
-            rec.wall_time = time.perf_counter() - t_it
-            problem.record(rec)
-            status = "infeasible_iterate"
-            message = (f"{STATUSES[status]}: iteration {it} has clearance margin {chk.margin:.3g} "
-                       f"and target margin {chk.target:.3g}")
-            break
-        if not c_new <= cost * (1 + monotone_tol) + 1e-12:     # NaN fails too
-            rec.accepted = False
-            rec.wall_time = time.perf_counter() - t_it
-            problem.record(rec)
-            status = "non_monotone"
-            message = f"{STATUSES['non_monotone']}: cost {cost:.8g} -> {c_new:.8g} at iteration {it}"
+        if taken is None:                       # every answer refused: the last refusal ends the run
+            status, name, sstat, chk, c_new, ctrl, info, kgap, why = refused
+            problem.record(IterationRecord(it, c_new, ctrl, info, sstat, stime, 0.0, time.perf_counter() - t_it,
+                                           sit, accepted=False, min_margin=chk.margin, kalman_gap=kgap))
+            message = f"{STATUSES[status]}: {why} at iteration {it} (last answer from {name})"
             log.warning(message)
             break
+        name, sstat, chk, c_new, ctrl, info, kgap = taken
+        rec = IterationRecord(it, c_new, ctrl, info, sstat, stime, 0.0, 0.0, sit, accepted=True,
+                              min_margin=chk.margin, kalman_gap=kgap)
         rho_s, rho_e = _adapt_rho(model, z, chk.point, rho_s, rho_e) if not rho else (rho_s, rho_e)
         rel = (cost - c_new) / max(abs(cost), 1e-300)
         z, cost = chk.point, c_new
@@ -279,8 +352,8 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         if bar is not None:
             bar.update(1)
             bar.set_postfix(cost=f"{cost:.5g}")
-        log.info("CCP iteration %d: cost %.8g (control %.4g, info %.4g nats), solver %s %.3fs",
-                 it, cost, ctrl, info, sstat, stime)
+        log.info("CCP iteration %d: cost %.8g (control %.4g, info %.4g nats), %s %s %.3fs",
+                 it, cost, ctrl, info, name, sstat, stime)
         if rel < problem.tol:
             status, message = "converged", f"{STATUSES['converged']} ({rel:.2e} < {problem.tol:g}) after {it} iterations"
             break
@@ -328,19 +401,64 @@ METHOD = register(Method(
 
 
 def ccp_subproblem(scenario, path, K: int | None = None, alpha: float | None = None):
-    """The ``cvxpy.Problem`` of the first CCP step from ``path``'s warm start,
-    parameters set, ready to ``.solve()`` (default solver CLARABEL with
-    ``equilibrate_enable=False``). Its variable ``z`` is the model's decision
-    vector (scaled units; docs/architecture.md)."""
-    from ..smoother.driver import _path, _scenario
+    """The first CCP step from ``path``'s warm start as a ``cvxpy.Problem``.
+
+    Parameters
+    ----------
+    scenario : Scenario, or a built-in name / scenario file.
+    path : a feasible BeliefPath, a PlanResult / SmoothResult (its path) or a WarmStart.
+    K : horizon of the warm start (None: one step per path edge).
+    alpha : weight of the information cost (None: the scenario's).
+
+    Returns
+    -------
+    cvxpy.Problem
+        A DPP problem of its own (every call returns a new one; solving it
+        leaves other problems alone), every parameter set at the warm start.
+        ``prob.solve()`` lets CVXPY pick the solver: with this package's
+        dependencies (cvxpy 1.9) that is SCS, at its default accuracy (about
+        1e-5 relative in the objective, 4-10 s at K = 20);
+        ``prob.solve(solver="CLARABEL")`` is about ten times faster and
+        tighter. Neither needs settings (tests/test_ccp_step.py). A solver's
+        answer meets the constraints to its tolerance only: check a path with
+        :func:`belief_nlp.verify` (the smoother checks every step exactly). Its variable ``z`` is the
+        model's decision vector in scaled units (lengths in units of sigma =
+        sqrt(max eig W): the means' steps, Q, S, certificates and auxiliaries;
+        docs/architecture.md); :func:`ccp_subproblem_path` maps the solved
+        problem back to a :class:`BeliefPath` in SI units.
+    """
+    import copy
+
     from ..smoother.warmstart import WarmStart, warm_start
 
-    sc = _scenario(scenario)
-    p = _path(path)
+    sc = as_scenario(scenario)
+    p = as_path(path)
     warm = p if isinstance(p, WarmStart) else warm_start(sc, p, K=K)
     model = BeliefModel(sc, warm.K, alpha)
     start = model.tighten(model.from_path(warm.path, warm.lam))
-    step, _, _ = compiled_step(model)
+    shared, _, _ = compiled_step(model)
+    step = copy.deepcopy(shared)       # its own variables and parameters; the compiled form comes along
+    for var in step.problem.variables():       # no answer from an earlier solve of the shared problem
+        var.value = None
     rho = initial_rho(model, start)
     step.set_point(start, rho, rho)
+    step.problem._belief_nlp_step = (step, model, start)
     return step.problem
+
+
+def ccp_subproblem_path(problem):
+    """The :class:`BeliefPath` (SI units) of a solved :func:`ccp_subproblem`:
+    the step's means and sensing, priors by the Kalman recursion (Lemma 2).
+
+    Raises
+    ------
+    ValidationError
+        ``problem`` is not from :func:`ccp_subproblem`, or is not solved.
+    """
+    ctx = getattr(problem, "_belief_nlp_step", None)
+    if ctx is None:
+        raise ValidationError("problem", "is not a problem made by ccp_subproblem")
+    step, model, start = ctx
+    if step.z.value is None:
+        raise ValidationError("problem", f"has no solution (status {problem.status!r}): solve it first")
+    return model.to_path(model.tighten(step.layout.extract(np.asarray(step.z.value, float), start)))

@@ -39,7 +39,7 @@ __all__ = ["problem_key", "MemoryCache", "DiskCache", "default_cache_dir", "MEMO
 log = logging.getLogger("belief_nlp.cache")
 
 # bump when the model's structure changes in a way the versions do not show
-MODEL_REVISION = 1
+MODEL_REVISION = 2
 
 
 def problem_key(D: ProblemData, chi2_margin: float, solver: str) -> str:
@@ -47,7 +47,7 @@ def problem_key(D: ProblemData, chi2_margin: float, solver: str) -> str:
     import casadi
     import cvxpy
 
-    from .. import __version__
+    from .._version import __version__
 
     h = hashlib.sha256()
     for part in (MODEL_REVISION, __version__, cvxpy.__version__, casadi.__version__, solver, repr(chi2_margin),

@@ -74,6 +74,7 @@ class Blocks:
     R_end: np.ndarray  # (K, J)   h1/h2 auxiliaries at the end of each transition
     R_start: np.ndarray  # (K, J) same at the start (row 0 unused: k = 1 is exact, C8)
     C: np.ndarray      # (N,)     target auxiliaries
+    R0: np.ndarray     # (J,)     the exact k = 1 start end (C8), in units of eps0^2 (see convex_form)
     Z: np.ndarray      # (K+1, d, d) lower triangular, k >= 2 (log det epigraph)
     u: np.ndarray      # (K+1, d) k >= 2
     n: int
@@ -109,13 +110,14 @@ def _blocks(D: ProblemData) -> Blocks:
     R_start = -np.ones((K, J), dtype=int)
     R_start[1:] = alloc((K - 1, J))
     C = alloc(D.At.shape[0])
+    R0 = alloc(J)
     Z = -np.ones((K + 1, d, d), dtype=int)
     u = -np.ones((K + 1, d), dtype=int)
     li, lj = np.tril_indices(d)
     for k in range(2, K + 1):
         Z[k, li, lj] = alloc(li.size)
         u[k] = alloc(d)
-    return Blocks(x, Q, S, lam, R_end, R_start, C, Z, u, counter[0])
+    return Blocks(x, Q, S, lam, R_end, R_start, C, R0, Z, u, counter[0])
 
 
 def _pick(z: ca.SX, idx: np.ndarray) -> ca.SX:
@@ -158,6 +160,14 @@ def _pair_function(d: int, F: int, chi2: float) -> ca.Function:
                        [ca.vec(h1), _rsoc(-h2_lin, r * dv - (x - xt) / r)])
 
 
+def start_factor(P0: np.ndarray) -> tuple[np.ndarray, float]:
+    """(L0, eps0): P0 = L0 L0^T (P0 may be singular) and eps0 = ||L0||_2 (1 when P0 = 0)."""
+    w0, V0 = np.linalg.eigh(P0)
+    L0 = V0 * np.sqrt(np.maximum(w0, 0.0))
+    eps0 = float(np.sqrt(max(float(np.max(w0)), 0.0)))
+    return L0, (eps0 if eps0 > 0 else 1.0)
+
+
 def _rsoc(w: ca.SX, y: ca.SX) -> ca.SX:
     """1/2 ||y||^2 <= w as the entries of one second-order cone (t, y, s)."""
     s2 = np.sqrt(2.0)
@@ -195,6 +205,8 @@ class StepLayout:
         if K > 1:
             out[B.R_start[1:]] = np.einsum("kjd,kjd->kj", v[1:],
                                            np.linalg.solve(Y[1:-1, None], v[1:, ..., None])[..., 0])
+        L0, eps0 = start_factor(D.P0)
+        out[B.R0] = np.sum((v[0] @ L0) ** 2, axis=-1) / eps0**2
         aYa = np.einsum("nd,nd->n", D.At, np.linalg.solve(Y[K], D.At.T).T)
         out[B.C] = 1.0 / np.sqrt(aYa)
         li, lj = np.tril_indices(D.d)
@@ -327,15 +339,21 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
         h1, h2 = pair.map(nb)(lam, lt, R, x, xt[:, kx.tolist()], Yv + ca.DM(Yc), A, b, r)
         fam.append(ConeFamily(f"h1_{name}", "psd", d + 1, nb, ca.vec(h1)))
         fam.append(ConeFamily(f"h2_{name}", "soc", d + 2, nb, ca.vec(h2)))
-    # k = 1, start end (C8): v^T P0 v <= 2 lam^T (A x0 - b) - chi2, exactly (x0 fixed)
-    w0, V0 = np.linalg.eigh(D.P0)
-    Ld = ca.DM(V0 * np.sqrt(np.maximum(w0, 0.0)))        # P0 = Ld Ld^T (P0 may be singular)
-    first = []
+    # k = 1, start end (C8): v^T P0 v <= 2 lam^T (A x0 - b) - chi2, exactly (x0 fixed),
+    # as eps0^2 R0 <= 2 lam^T (A x0 - b) - chi2 and R0 >= ||L0^T v / eps0||^2 (an LMI), with
+    # P0 = L0 L0^T and eps0 = ||L0||: the LMI's entries are O(1) however small P0 is (the
+    # paper's 1e-9 I; a single cone holding v^T P0 v and the O(10) linear part had rows
+    # 1.9e4 times apart, docs/numerics.md "Conditioning of the CCP step")
+    L0, eps0 = start_factor(D.P0)
+    h2_first, h1_first = [], []
     for j in range(J):
         A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
         lam = Lam[0][j]
-        first.append(_rsoc(0.5 * (terms.bilinear(lam, X[0], A, b) - chi2), ca.mtimes(Ld.T, ca.mtimes(A.T, lam))))
-    add("start_exact", "soc", d + 2, first)
+        R0 = z[int(B.R0[j])]
+        h2_first.append(terms.bilinear(lam, X[0], A, b) - chi2 - eps0**2 * R0)
+        h1_first.append(terms.h1_lmi(R0, ca.mtimes(ca.DM(L0 / eps0).T, ca.mtimes(A.T, lam)), ca.DM.eye(d)))
+    add("start_h2", "nonneg", 1, h2_first)
+    add("start_h1", "psd", d + 1, h1_first)
     t1, t2 = [], []
     for n in range(N):
         m1, m2 = terms.target_lmis(X[K], z[int(B.C[n])], Y[K], ca.DM(D.At[n]), D.bt[n], chi2)

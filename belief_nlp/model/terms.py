@@ -65,9 +65,15 @@ def collision_margin_cov(x, P, lam, A, b, chi2):
 
 
 def kalman_lmi(Q, Y_prev, W_inv):
-    """Relaxed Kalman step of prob_2 as the 2d x 2d LMI of C7:
-    [[W^-1 - Q_k, W^-1], [W^-1, Y_{k-1} + W^-1]] >= 0  <=>  Q_k <= (Y_{k-1}^-1 + W)^-1."""
-    return ca.blockcat([[W_inv - Q, W_inv], [W_inv, Y_prev + W_inv]])
+    """Relaxed Kalman step of prob_2 as a 2d x 2d LMI (C7):
+    [[Y - Q_k, -Y], [-Y, Y + W^-1]] >= 0  <=>  Q_k <= (Y_{k-1}^-1 + W)^-1, Y = Y_{k-1}.
+
+    It is the errata's [[W^-1 - Q_k, W^-1], [W^-1, Y + W^-1]] under the
+    congruence T = [[I, -I], [0, I]] (same cone). Here every entry holds a
+    variable; the errata's constant W^-1 block left rows without one, which a
+    conic solver's equilibration cannot scale (docs/numerics.md,
+    "Conditioning of the CCP step")."""
+    return ca.blockcat([[Y_prev - Q, -Y_prev], [-Y_prev, Y_prev + W_inv]])
 
 
 def kalman_residual(Q, Y_prev, W):

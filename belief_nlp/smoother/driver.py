@@ -31,9 +31,10 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import InfeasibleStartError, ValidationError
+from ..inputs import as_path, as_scenario
 from ..model import BeliefModel, Layout
 from ..path import BeliefPath
-from ..scenario import Scenario, load_scenario
+from ..scenario import Scenario
 from .context import Outcome, SmoothingProblem
 from .registry import DEFAULT_METHOD, Method, resolve_method
 from .result import STATUSES, SmoothResult
@@ -85,24 +86,6 @@ def _check_args(max_iter, tol, alpha, time_limit, K, solver_options, callback) -
         raise ValidationError("solver_options", f"must be a dict, got {type(solver_options).__name__}")
     if callback is not None and not callable(callback):
         raise ValidationError("callback", f"must be callable, got {type(callback).__name__}")
-
-
-def _scenario(scenario: Any) -> Scenario:
-    if isinstance(scenario, str):
-        return load_scenario(scenario)
-    if not isinstance(scenario, Scenario):
-        raise ValidationError("scenario", f"must be a Scenario or a scenario name/file, got {type(scenario).__name__}")
-    return scenario
-
-
-def _path(path: Any) -> BeliefPath | WarmStart:
-    if isinstance(path, (BeliefPath, WarmStart)):
-        return path
-    inner = getattr(path, "path", None)       # PlanResult, SmoothResult
-    if isinstance(inner, BeliefPath):
-        return inner
-    raise ValidationError("path", f"must be a BeliefPath, a WarmStart or a result with a .path, "
-                                  f"got {type(path).__name__}")
 
 
 def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method = DEFAULT_METHOD, K: int | None = None,
@@ -157,8 +140,8 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
                           solver_options=solver_options, keep_iterates=keep_iterates, progress=progress,
                           sensing=sensing, callback=callback, verbose=False, k_fallback=k_fallback, **options)
     t0 = time.perf_counter()
-    scenario = _scenario(scenario)
-    path = _path(path)
+    scenario = as_scenario(scenario)
+    path = as_path(path)
     m = resolve_method(method)
     _check_args(max_iter, tol, alpha, time_limit, K, solver_options, callback)
     opts = m.validate(options)

@@ -100,14 +100,9 @@ def unregister(name: str) -> None:
     _REGISTRY.pop(name, None)
 
 
-def _load_builtins() -> None:
-    from .. import methods  # noqa: F401 - importing registers the built-in methods
-
-
 def available_methods() -> list[str]:
     """Names of the registered smoothing methods: :data:`DEFAULT_METHOD`
     first, then the others in registration order (built-ins first)."""
-    _load_builtins()
     names = list(_REGISTRY)
     if DEFAULT_METHOD in names:
         names.remove(DEFAULT_METHOD)
@@ -117,7 +112,6 @@ def available_methods() -> list[str]:
 
 def get_method(name: str) -> Method:
     """The registered method ``name`` (our error lists the known ones)."""
-    _load_builtins()
     if not isinstance(name, str) or name not in _REGISTRY:
         raise ValidationError("method", f"must be one of {available_methods()} or a callable, got {name!r}")
     return _REGISTRY[name]
