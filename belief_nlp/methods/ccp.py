@@ -168,9 +168,13 @@ def _adapt_rho(model: BeliefModel, z: Layout, z_new: Layout, rho_s: np.ndarray, 
     return out
 
 
-def _solve(step: CompiledProblem, solver: str, options: dict,
-           time_left: float | None = None) -> tuple[str, np.ndarray | None, float, int]:
-    """Solve the step with exactly these settings: (status, z or None, solver time, iterations)."""
+def _solve(step: CompiledProblem, solver: str, options: dict, time_left: float | None = None,
+           reuse: bool = False) -> tuple[str, np.ndarray | None, float, int]:
+    """Solve the step with exactly these settings: (status, z or None, solver time, iterations).
+
+    ``reuse``: update the solver object of the previous solve in place (CVXPY's
+    ``warm_start``), which keeps that solve's settings where ``options`` is
+    silent; otherwise a new solver object gets exactly ``options``."""
     import cvxpy as cp
 
     opts = dict(options)
@@ -179,7 +183,7 @@ def _solve(step: CompiledProblem, solver: str, options: dict,
     try:
         with warnings.catch_warnings():       # "may be inaccurate": the status says so, and the exact check decides
             warnings.simplefilter("ignore", UserWarning)
-            step.problem.solve(solver=solver, warm_start=solver in REUSE, **opts)
+            step.problem.solve(solver=solver, warm_start=reuse and solver in REUSE, **opts)
     except (cp.error.SolverError, ValueError, ArithmeticError) as exc:
         return f"error: {str(exc).splitlines()[0][:120]}", None, 0.0, 0
     st = step.problem.solver_stats
@@ -219,7 +223,8 @@ class _StepAnswers:
                 if self.fail:                                   # injected fault (tests)
                     status, zv, t, n = "injected failure", None, 0.0, 0
                 else:
-                    status, zv, t, n = _solve(self.step, solver, opts, self.problem.time_left())
+                    status, zv, t, n = _solve(self.step, solver, opts, self.problem.time_left(),
+                                              reuse=self.pos == 1)      # the first entry's solver object lives on
                 self.solve_time, self.iterations = self.solve_time + t, self.iterations + n
                 self.attempts.append({"solver": solver, "settings": label, "status": status, "solve_time": t,
                                       "iterations": n})
