@@ -69,8 +69,8 @@ def test_a_nonsense_solver_answer_is_a_failed_subproblem(small, monkeypatch, fau
     real = ccp_method._solve
     calls = []
 
-    def lying(step, *args):
-        status, zv, t, n = real(step, *args)
+    def lying(step, *args, **kwargs):
+        status, zv, t, n = real(step, *args, **kwargs)
         calls.append(1)
         if len(calls) < 2 or zv is None:
             return status, zv, t, n
@@ -78,7 +78,7 @@ def test_a_nonsense_solver_answer_is_a_failed_subproblem(small, monkeypatch, fau
                "nan": np.where(np.arange(zv.size) % 7 == 0, np.nan, zv)}[fault]
         return "optimal", bad, t, n
 
-    monkeypatch.setattr(ccp_method, "_solve", lambda *a: ccp_method._checked(*lying(*a), a[0]))
+    monkeypatch.setattr(ccp_method, "_solve", lambda *a, **k: ccp_method._checked(*lying(*a, **k), a[0]))
     res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=6)
     assert res.status in ("solver_failed", "infeasible_iterate") and not res.success
     assert res.safe and res.cost <= res.initial_cost
