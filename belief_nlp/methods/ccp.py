@@ -328,10 +328,37 @@ METHOD = register(Method(
 
 
 def ccp_subproblem(scenario, path, K: int | None = None, alpha: float | None = None):
-    """The ``cvxpy.Problem`` of the first CCP step from ``path``'s warm start,
-    parameters set, ready to ``.solve()`` (default solver CLARABEL with
-    ``equilibrate_enable=False``). Its variable ``z`` is the model's decision
-    vector (scaled units; docs/architecture.md)."""
+    """The convex subproblem of the first CCP step, as a ``cvxpy.Problem``.
+
+    Built from ``path``'s warm start with its parameters set, ready to
+    ``.solve()`` (the smoother uses CLARABEL with ``equilibrate_enable=False``),
+    to print, or to hand to another solver.
+
+    Parameters
+    ----------
+    scenario : Scenario or str
+        The scenario, or a built-in name / scenario file.
+    path : BeliefPath, result or WarmStart
+        A feasible path (or a plan or smoothing result holding one), or a
+        warm start used as it is.
+    K : int, optional
+        Horizon of the warm start; None as in :func:`belief_nlp.warm_start`.
+    alpha : float, optional
+        Information weight; None uses the scenario's.
+
+    Returns
+    -------
+    cvxpy.Problem
+        The step's problem; its variable ``z`` is the model's decision vector
+        (scaled units; docs/architecture.md).
+
+    Raises
+    ------
+    InfeasibleStartError
+        When no feasible warm start can be built from ``path``.
+    ValidationError
+        For bad arguments, naming the argument.
+    """
     from ..smoother.driver import _path, _scenario
     from ..smoother.warmstart import WarmStart, warm_start
 
