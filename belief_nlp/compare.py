@@ -74,22 +74,39 @@ def compare(scenario: Scenario | str, path: BeliefPath | WarmStart, methods: Ite
 
     Parameters
     ----------
-    scenario : Scenario or built-in name / file.
-    path : a feasible BeliefPath (the warm start is built once, with ``K`` and
-        ``sensing`` as in :func:`belief_nlp.warm_start`), or a WarmStart.
-    methods : smoothing methods (names from :func:`available_methods`,
-        registered Methods or callables); None = every registered method.
-    max_iter : one limit for all, a dict per method name, or None for each
-        method's own default (the same as :func:`smooth`'s).
-    method_options : per-method keywords for ``smooth``, e.g.
+    scenario : Scenario or str
+        The scenario, or a built-in name / scenario file.
+    path : BeliefPath or WarmStart
+        A feasible path (the warm start is built once from it, with ``K`` and
+        ``sensing`` as in :func:`belief_nlp.warm_start`), or a warm start.
+    methods : iterable, optional
+        Smoothing methods: names from :func:`available_methods`, registered
+        :class:`Method` objects or callables; None runs every registered method.
+    K : int, optional
+        Horizon of the warm start; None as in :func:`warm_start`.
+    max_iter : int or dict, optional
+        One limit for all, a dict per method name, or None for each method's
+        own default (the same as :func:`smooth`'s).
+    method_options : dict, optional
+        Per-method keywords for ``smooth``, e.g.
         ``{"ipopt": {"formulation": "minors", "solver_options": {...}}}``.
-    **common_options : keywords for every ``smooth`` call (``alpha``, ``tol``,
+    sensing : {"minimal", "path"}, optional
+        How the warm start sets the covariances (see :func:`warm_start`).
+    **common_options
+        Keywords for every ``smooth`` call (``alpha``, ``tol``,
         ``time_limit``, ``solver``, ``progress``, ...).
 
     Returns
     -------
-    list of dict, one per method, in ``methods`` order (keys: :data:`RECORD_KEYS`,
-    described in the module docstring).
+    list of dict
+        One record per method, in ``methods`` order (keys: ``RECORD_KEYS``,
+        described in the module docstring of :mod:`belief_nlp.compare`); a
+        method that raised a BeliefNLPError gives a record with ``status="error"``
+        and its message.
+
+    See Also
+    --------
+    records_to_table : the records as a table.
     """
     from .inputs import as_path
     from .smoother.driver import smooth
@@ -184,10 +201,23 @@ def _fmt(value: Any, spec: str) -> str:
 
 
 def records_to_table(records: Iterable[Mapping[str, Any]], columns: list[tuple[str, str, str]] | None = None) -> str:
-    """A plain-text (Markdown-compatible) table of comparison records, one row
-    per record. Identifying columns (scenario, seed, alpha, K) are added in
-    front when the records vary in them; ``columns`` overrides the defaults
-    with (key, header, format) triples. Error records show their message."""
+    """A plain-text (Markdown-compatible) table of comparison records.
+
+    Parameters
+    ----------
+    records : iterable of dict
+        Records from :func:`compare` (or study rows with the same keys).
+    columns : list of (key, header, format), optional
+        The columns to show instead of the defaults; ``format`` is a format
+        spec such as ``".4g"``.
+
+    Returns
+    -------
+    str
+        One row per record. Identifying columns (scenario, seed, alpha, K)
+        are added in front when the records vary in them; error records show
+        their message.
+    """
     records = list(records)
     if not records:
         return "(no records)"

@@ -108,19 +108,34 @@ def _positive_definite(P: np.ndarray) -> bool:
 class BeliefPath:
     """A discrete belief path (x_k, P_k), k = 0..K.
 
-    Attributes
-    ----------
-    x : (K+1, d) means; x[0] is the start.
-    P : (K+1, d, d) posterior covariances; P[0] is the start covariance P0.
-    P_prior : (K+1, d, d) prior covariances P_hat_k = P_{k-1} + W_k (P_prior[0] = P0).
-    S : (K+1, d, d) sensing information, P_k = (P_prior_k^-1 + S_k)^-1 (S[0] = 0).
-    noise : "per_step" (W_k = W, the smoother's model) or "per_metre"
-        (W_k = W_rate ||x_k - x_{k-1}||, the authors' planner).
-    meta : free-form provenance (planner seed, solver, ...), JSON-serialisable.
-
     The noise added on transition k is ``P_prior[k] - P[k-1]``; during the
     transition the covariance grows linearly, P(s) = P[k-1] + s W_k
-    (paper Definition 3).
+    (paper Definition 3). The arrays are validated on construction and
+    read-only afterwards (build a new path with ``dataclasses.replace``);
+    :meth:`from_sensing` and :meth:`from_covariances` build consistent paths.
+
+    Parameters
+    ----------
+    x : array_like, shape (K+1, d)
+        Means; ``x[0]`` is the start.
+    P : array_like, shape (K+1, d, d)
+        Posterior covariances; ``P[0]`` is the start covariance P0.
+    P_prior : array_like, shape (K+1, d, d)
+        Prior covariances P_hat_k = P_{k-1} + W_k (``P_prior[0] = P0``).
+    S : array_like, shape (K+1, d, d)
+        Sensing information, P_k = (P_prior_k^-1 + S_k)^-1 (``S[0] = 0``).
+    noise : {"per_step", "per_metre"}, optional
+        ``"per_step"`` (W_k = W, the smoother's model, the default) or
+        ``"per_metre"`` (W_k = W_rate ||x_k - x_{k-1}||, the authors' planner).
+    meta : dict, optional
+        Free-form provenance (planner seed, solver, ...), JSON-serialisable.
+
+    Raises
+    ------
+    ValidationError
+        For arrays of the wrong shape, non-finite entries, an unknown noise
+        model or a ``meta`` that is not a dict; the error names the field
+        (``"path.x"``, ...).
     """
 
     x: np.ndarray
@@ -260,6 +275,7 @@ class BeliefPath:
 
     @property
     def dim(self) -> int:
+        """Dimension d of the space (2 or 3)."""
         return self.x.shape[1]
 
     @property
@@ -327,6 +343,13 @@ class BeliefPath:
 
     # ---------------------------------------------------------------- files
     def to_dict(self) -> dict[str, Any]:
+        """The path as JSON-ready data; :meth:`from_dict` reads it back equal.
+
+        Returns
+        -------
+        dict
+            ``x``, ``P``, ``P_prior`` and ``S`` as nested lists, ``noise`` and ``meta``.
+        """
         return {
             "x": self.x.tolist(),
             "P": self.P.tolist(),

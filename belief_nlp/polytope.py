@@ -250,15 +250,29 @@ class Polytope:
     :meth:`from_halfspaces`; they validate their input and raise
     :class:`~belief_nlp.errors.ValidationError` naming ``field`` on faults.
 
-    Attributes
+    The direct constructor stores what it is given (read-only copies) after
+    refusing non-finite or mis-shaped arrays; it derives nothing.
+
+    Parameters
     ----------
-    A, b:
-        Half-space form, ``A`` of shape (f, d) with unit rows, ``b`` of shape (f,).
-    vertices:
-        (n, d) vertices for bounded polytopes (counter-clockwise in 2-D),
-        ``None`` for unbounded ones (e.g. a single half-space).
-    name:
-        Optional label used in reports ("obstacle 3", "wall 2").
+    A : array_like, shape (f, d)
+        Half-space normals, one unit-length row per face.
+    b : array_like, shape (f,)
+        Half-space offsets: the polytope is ``A y <= b``.
+    vertices : array_like, shape (n, d), optional
+        Vertices of a bounded polytope (counter-clockwise in 2-D); None for
+        unbounded ones (e.g. a single half-space).
+    name : str, optional
+        Label used in reports ("obstacle 3", "wall 2").
+    spec : dict, optional
+        The form the polytope was given in (``{"vertices": ...}``,
+        ``{"box": ...}`` or ``{"A", "b"}``), which :meth:`to_dict` writes back.
+
+    Raises
+    ------
+    ValidationError
+        For non-finite or mis-shaped arrays, a dimension above the limit, or
+        a name that is not a string.
     """
 
     A: np.ndarray
@@ -431,14 +445,17 @@ class Polytope:
     # ------------------------------------------------------------- properties
     @property
     def dim(self) -> int:
+        """Dimension d of the space."""
         return int(self.A.shape[1])
 
     @property
     def n_faces(self) -> int:
+        """Number of faces f (rows of ``A``)."""
         return int(self.A.shape[0])
 
     @property
     def bounded(self) -> bool:
+        """True for a bounded polytope (one with ``vertices``)."""
         return self.vertices is not None
 
     def contains(self, y: Any, tol: float = 0.0) -> np.ndarray | bool:
@@ -452,6 +469,18 @@ class Polytope:
         return bool(out) if out.ndim == 0 else out
 
     def bounding_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The axis-aligned box around the vertices.
+
+        Returns
+        -------
+        lower, upper : ndarray, shape (d,)
+            Smallest and largest vertex coordinate along each axis.
+
+        Raises
+        ------
+        ValueError
+            For an unbounded polytope (no vertices).
+        """
         if self.vertices is None:
             raise ValueError("unbounded polytope has no bounding box")
         return self.vertices.min(axis=0), self.vertices.max(axis=0)

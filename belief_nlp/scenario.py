@@ -135,24 +135,52 @@ def _covariance(value: Any, d: int, field_name: str, allow_singular: bool) -> np
 
 @dataclass(frozen=True, eq=False)
 class Scenario:
-    """A validated planning problem. Build with :func:`scenario_from_dict`,
-    :func:`load_scenario` or the constructor (which validates too).
+    """A validated planning problem.
 
-    Attributes
+    Build with :func:`scenario_from_dict`, :func:`load_scenario` or the
+    constructor (which validates too); :meth:`with_options` gives a copy
+    with some fields changed. The file form is described in
+    docs/scenario_schema.md.
+
+    Parameters
     ----------
-    domain, target : Polytope
+    domain : Polytope
+        The bounded region the robot stays in (its outside is the walls).
+    target : Polytope
+        Where the final confidence ellipse must lie.
     obstacles : tuple of Polytope
-    x0 : (d,) start mean; P0 : (d, d) start covariance (positive semidefinite)
-    W : (d, d) process noise per time step (smoother's model, paper eq. 2)
-    W_rate : (d, d) process noise per metre travelled (the authors' planner)
-    alpha : information weight (>= 0)
-    confidence : confidence level of the ellipses, in (0, 1); 0.9 when neither
-        it nor ``chi2_value`` is given. ``chi2`` is the matching chi-square
-        quantile for ``dim`` degrees of freedom.
-    chi2_value : give the squared radius directly instead of ``confidence``
-        (not both); ``confidence`` is then None
-    K : default horizon of the smoother, or None
-    planner : default keyword options for the planner
+        Convex obstacles the confidence ellipses must avoid.
+    x0 : array_like, shape (d,)
+        Start mean.
+    P0 : array_like, shape (d, d)
+        Start covariance (positive semidefinite).
+    W : array_like, shape (d, d)
+        Process noise per time step (the smoother's model, paper eq. 2).
+    W_rate : array_like, shape (d, d)
+        Process noise per metre travelled (the authors' planner).
+    alpha : float, optional
+        Information weight (>= 0), default 0.1.
+    confidence : float or None, optional
+        Confidence level of the ellipses, in (0, 1); 0.9 when neither it nor
+        ``chi2_value`` is given. :attr:`chi2` is the matching chi-square
+        quantile for :attr:`dim` degrees of freedom.
+    chi2_value : float or None, optional
+        The squared radius given directly instead of ``confidence`` (not
+        both); ``confidence`` is then None.
+    K : int or None, optional
+        Default horizon of the smoother.
+    planner : dict, optional
+        Default keyword options for the planner (its ``[planner]`` table).
+    name : str, optional
+        Name of the scenario (built-ins: ``"paper-multi"``, ...).
+    description : str, optional
+        One line for listings.
+
+    Raises
+    ------
+    ValidationError
+        For any bad value; the error names the field (``"start.P"``,
+        ``"obstacles[2].vertices"``, ...).
     """
 
     domain: Polytope
@@ -176,6 +204,7 @@ class Scenario:
     # ------------------------------------------------------------------ basics
     @property
     def dim(self) -> int:
+        """Dimension d of the space (2 or 3)."""
         return self.domain.dim
 
     @cached_property
@@ -217,6 +246,14 @@ class Scenario:
 
     # ------------------------------------------------------------- serialise
     def to_dict(self) -> dict:
+        """The scenario in the file schema; :func:`scenario_from_dict` reads it back equal.
+
+        Returns
+        -------
+        dict
+            The tables of docs/scenario_schema.md (``domain``, ``obstacles``,
+            ``target``, ``start``, ``noise``, ...), as :func:`save_scenario` writes them.
+        """
         out: dict[str, Any] = {}
         if self.name:
             out["name"] = self.name
@@ -342,9 +379,25 @@ _TABLE_KEYS = {"start": (("x", "P"), ()), "noise": (("W",), ("W_rate",)), "horiz
 def scenario_from_dict(data: Any, source: str = "scenario") -> Scenario:
     """Build a :class:`Scenario` from the file schema (docs/scenario_schema.md).
 
-    Structural faults (not a table, missing or unknown keys, wrong types) raise
-    :class:`~belief_nlp.errors.ScenarioFileError`; bad values raise
-    :class:`~belief_nlp.errors.ValidationError`. Both name the field.
+    Parameters
+    ----------
+    data : dict
+        The scenario's tables, as read from a TOML or JSON file
+        (:meth:`Scenario.to_dict` writes them).
+    source : str, optional
+        What the data came from (a file name), quoted in error messages.
+
+    Returns
+    -------
+    Scenario
+        The validated scenario.
+
+    Raises
+    ------
+    ScenarioFileError
+        For structural faults: not a table, missing or unknown keys, wrong types.
+    ValidationError
+        For bad values. Both name the field.
     """
     if not isinstance(data, dict):
         raise ScenarioFileError("file", f"{source}: the top level must be a table/object, got {type(data).__name__}")
@@ -419,7 +472,14 @@ def scenario_from_dict(data: Any, source: str = "scenario") -> Scenario:
 
 
 def list_scenarios() -> list[str]:
-    """Names of the built-in scenarios."""
+    """Names of the built-in scenarios.
+
+    Returns
+    -------
+    list of str
+        Sorted names that :func:`load_scenario` takes (``"cube3d"``,
+        ``"paper-multi"``, ``"quad"``, ``"tutorial"``, ...).
+    """
     files = resources.files(_BUILTIN_PACKAGE).iterdir()
     return sorted(p.name[:-5] for p in files if p.name.endswith(".toml"))
 
@@ -427,12 +487,28 @@ def list_scenarios() -> list[str]:
 def load_scenario(name_or_path: str | os.PathLike | Scenario) -> Scenario:
     """Load a built-in scenario by name, or a ``.toml`` / ``.json`` file.
 
-    Files whose suffix is neither are read as TOML. Faults raise
-    :class:`~belief_nlp.errors.ScenarioFileError` (field ``"file"`` for an
-    unreadable, malformed, too large (> 8 MiB) or too deeply nested (> 32
-    levels) file, ``"name"`` for an unknown built-in or a name longer than
-    4096 characters); a value other than a name, a path or a Scenario raises
-    :class:`~belief_nlp.errors.ValidationError` (field ``"scenario"``).
+    Parameters
+    ----------
+    name_or_path : str, os.PathLike or Scenario
+        A built-in name (:func:`list_scenarios`), a scenario file (files
+        whose suffix is neither ``.toml`` nor ``.json`` are read as TOML), or
+        a Scenario, returned as it is.
+
+    Returns
+    -------
+    Scenario
+        The validated scenario.
+
+    Raises
+    ------
+    ScenarioFileError
+        Field ``"file"`` for an unreadable, malformed, too large (> 8 MiB) or
+        too deeply nested (> 32 levels) file; ``"name"`` for an unknown
+        built-in or a name longer than 4096 characters; schema faults name
+        their key.
+    ValidationError
+        Field ``"scenario"`` for a value other than a name, a path or a
+        Scenario; bad values in a file name their field.
     """
     if isinstance(name_or_path, Scenario):
         return name_or_path
@@ -464,10 +540,27 @@ def _parse(raw: bytes, fmt: str, source: str) -> Scenario:
 
 
 def save_scenario(scenario: Scenario, path: str | os.PathLike) -> Path:
-    """Write ``scenario`` as TOML or JSON (by suffix); :func:`load_scenario` reads it back equal.
+    """Write ``scenario`` as TOML or JSON; :func:`load_scenario` reads it back equal.
 
-    A file that cannot be written (missing folder, no permission) raises
-    :class:`~belief_nlp.errors.ScenarioFileError` naming ``file``.
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario to write.
+    path : str or os.PathLike
+        The file; its suffix (``.toml`` or ``.json``) chooses the format.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+
+    Raises
+    ------
+    ValidationError
+        When ``scenario`` is not a Scenario or ``path`` has another suffix.
+    ScenarioFileError
+        Naming ``file`` when the file cannot be written (missing folder, no
+        permission).
     """
     if not isinstance(scenario, Scenario):
         raise ValidationError("scenario", f"must be a Scenario, got {type(scenario).__name__}")

@@ -47,32 +47,47 @@ __all__ = ["verify", "VerificationReport"]
 
 @dataclass
 class VerificationReport:
-    """Outcome of :func:`verify`.
+    """Outcome of :func:`verify`; true in a boolean context when the path is safe.
 
     Margins are "squared Mahalanobis distance minus chi2" (>= 0 is safe)
     unless stated otherwise.
 
     Attributes
     ----------
-    safe : every check passed within ``tol``.
-    min_margin : smallest safety margin over all transitions, hazards and
-        target faces (target faces converted to the same unit).
-    worst : human-readable name of the worst offender.
-    transition_margins : (K, J) min over sampled s, per transition and hazard
-        (obstacles first, then domain walls; names in ``hazard_names``).
-    target_margins_m : (N,) b_n - a_n^T x_K - sqrt(chi2 a_n^T P_K a_n), metres.
-    kalman_residual : (K,) relative error of P_k against (P_prior_k^-1 + S_k)^-1.
-    sensing_min_eig : (K,) smallest eigenvalue of S_k relative to its norm.
-    noise_residual : (K,) relative error of P_prior_k - P_{k-1} against the
-        scenario's noise model.
-    start_residual : relative error of (x_0, P_0) against the scenario's start.
-    problems : list of the failed checks, in words.
-    proof : what decided the transitions: "sampling" (dense sampling of s,
+    safe : bool
+        Every check passed within ``tol``.
+    min_margin : float
+        Smallest safety margin over all transitions, hazards and target faces
+        (target faces converted to the same unit).
+    worst : str
+        Human-readable name of the worst offender.
+    transition_margins : ndarray, shape (K, J)
+        Minimum over the sampled s, per transition and hazard (obstacles
+        first, then domain walls; names in ``hazard_names``).
+    hazard_names : list of str
+        Names of the J hazards, in the columns' order.
+    target_margins_m : ndarray, shape (N,)
+        b_n - a_n^T x_K - sqrt(chi2 a_n^T P_K a_n) per target face, metres.
+    kalman_residual : ndarray, shape (K,)
+        Relative error of P_k against (P_prior_k^-1 + S_k)^-1.
+    sensing_min_eig : ndarray, shape (K,)
+        Smallest eigenvalue of S_k relative to its norm.
+    noise_residual : ndarray, shape (K,)
+        Relative error of P_prior_k - P_{k-1} against the scenario's noise model.
+    start_residual : float
+        Relative error of (x_0, P_0) against the scenario's start.
+    tol : float
+        The tolerance the margins were judged with (margins >= -tol * chi2 pass).
+    problems : list of str
+        The failed checks, in words.
+    proof : str
+        What decided the transitions: ``"sampling"`` (dense sampling of s,
         refined around the worst sample: a second opinion), or
-        "certificates+sampling" when Theorem-1 certificates were given and
-        prove every pair in closed form (then the sampling must agree too).
-    certificate_margins : (K, J) min(f_0(lam), f_1(lam)) - chi2 of the given
-        certificates (a rigorous lower bound on the clearance), or None.
+        ``"certificates+sampling"`` when Theorem-1 certificates were given
+        and prove every pair in closed form (then the sampling must agree too).
+    certificate_margins : ndarray, shape (K, J), or None
+        min(f_0(lam), f_1(lam)) - chi2 of the given certificates (a rigorous
+        lower bound on the clearance), or None.
     """
 
     safe: bool
@@ -109,12 +124,29 @@ class VerificationReport:
                 f"problems={len(self.problems)}{': ' + shown + more if shown else ''})")
 
     def summary(self) -> str:
+        """SAFE or UNSAFE with the smallest margin and the worst offender, then one line per problem.
+
+        Returns
+        -------
+        str
+            Lines separated by newlines.
+        """
         head = "SAFE" if self.safe else "UNSAFE"
         lines = [f"{head}: min margin {self.min_margin:.4g} (worst: {self.worst})"]
         lines += [f"  - {p}" for p in self.problems]
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
+        """The verdict as JSON-ready data (what results store as ``verification``).
+
+        Returns
+        -------
+        dict
+            ``safe``, ``min_margin``, ``worst``, ``problems``, ``proof``, and
+            the extremes ``max_kalman_residual``, ``min_target_margin_m`` and
+            ``min_certificate_margin`` (None without certificates); the
+            per-transition arrays are left out.
+        """
         return {
             "safe": self.safe,
             "min_margin": self.min_margin,
@@ -330,27 +362,48 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
            n_refine: int = 41, tol: float = 1e-6, certificates: np.ndarray | None = None) -> VerificationReport:
     """Check a belief path for safety and consistency, independently of the solvers.
 
+    Every transition is checked against every hazard by dense sampling of
+    the transition parameter s (refined around the worst sample), the final
+    ellipse against the target, and the covariances against the Kalman
+    recursion, the noise model and the start. A margin that cannot be
+    computed (NaN) is a failure, never a pass; a path with non-finite
+    entries is reported unsafe.
+
     Parameters
     ----------
-    scenario : a :class:`Scenario`, a built-in name or a scenario file.
-    path : a :class:`BeliefPath`, or a result holding one in ``.path``
+    scenario : Scenario, str or os.PathLike
+        The scenario, a built-in name or a scenario file.
+    path : BeliefPath or result
+        A path, or a result holding one in ``.path``
         (:class:`~belief_nlp.PlanResult`, :class:`~belief_nlp.SmoothResult`).
-    n_samples : samples of s in [0, 1] per transition (endpoints included),
-        an integer from 2 to 10001 (``belief_nlp._limits.MAX_VERIFY_SAMPLES``).
-    n_refine : extra samples in the interval on each side of the worst
-        sample, same range.
-    tol : margins >= -tol * chi2 count as clear; 0 <= tol < 1. Relative
-        residuals of the Kalman recursion and of the noise model must be <= 1e-6.
-    certificates : optional Theorem-1 certificates (K, J, F) in 1/m, hazards
-        in ``scenario.hazards`` order, faces padded with zeros (as
-        ``SmoothResult.certificates``; taken from ``path`` when it is a
-        result that carries them). Each must be >= 0 and prove its pair in
-        closed form, min(f_0, f_1) >= chi2 (docs/safety.md); otherwise the
-        path is not called safe.
+    n_samples : int, optional
+        Samples of s in [0, 1] per transition (endpoints included), from 2 to
+        10001 (``belief_nlp._limits.MAX_VERIFY_SAMPLES``); default 101.
+    n_refine : int, optional
+        Extra samples in the interval on each side of the worst sample, same
+        range; default 41.
+    tol : float, optional
+        Margins >= -tol * chi2 count as clear; 0 <= tol < 1 (default 1e-6).
+        Relative residuals of the Kalman recursion and of the noise model
+        must be <= 1e-6.
+    certificates : ndarray, shape (K, J, F), optional
+        Theorem-1 certificates in 1/m, hazards in ``scenario.hazards``
+        order, faces padded with zeros (as ``SmoothResult.certificates``;
+        taken from ``path`` when it is a result that carries them). Each
+        must be >= 0 and prove its pair in closed form, min(f_0, f_1) >=
+        chi2 (docs/safety.md); otherwise the path is not called safe.
 
-    A margin that cannot be computed (NaN) is a failure, never a pass; a path
-    with non-finite entries is reported unsafe. Bad arguments raise
-    :class:`~belief_nlp.errors.ValidationError` naming the argument.
+    Returns
+    -------
+    VerificationReport
+        ``safe`` and the margins; true in a boolean context when safe.
+
+    Raises
+    ------
+    ValidationError
+        For bad arguments, naming the argument.
+    ScenarioFileError
+        When ``scenario`` names a file that cannot be read.
     """
     scenario, by_name = _as_scenario(scenario)
     if certificates is None:

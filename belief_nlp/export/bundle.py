@@ -195,10 +195,12 @@ class SafetyBundle(_Bundle):
 
     @property
     def n_lam(self) -> int:
+        """Number of certificate entries, J hazards times F faces."""
         return self.J * self.F
 
     @property
     def lam_lb(self) -> np.ndarray:
+        """Lower bounds of the certificates: zeros, shape (J F,) (certificates are >= 0)."""
         return np.zeros(self.n_lam)
 
     def params(self, scenario: Scenario | str | None = None) -> np.ndarray:
@@ -264,6 +266,7 @@ class TerminalBundle(_Bundle):
         return self.function(x, P, p) if self.soft_penalty is None else self.function(x, P, slack, p)
 
     def scaled(self) -> "TerminalBundle":
+        """The same constraints in the model's scaled units (as :meth:`SafetyBundle.scaled`)."""
         return _make_terminal(self, "scaled", self.soft_penalty)
 
     def soft(self, weight: float, norm: str = "l1") -> "TerminalBundle":

@@ -132,14 +132,17 @@ class BeliefMPC:
     # ------------------------------------------------------------- sizes
     @property
     def d(self) -> int:
+        """Dimension of the space (2 or 3)."""
         return self.stage.d
 
     @property
     def sigma(self) -> float:
+        """The length scale (m) of the model's scaled units: sqrt of the largest eigenvalue of W."""
         return self.stage.sigma
 
     @property
     def W(self) -> np.ndarray:
+        """Process noise per step in scaled units, ``scenario.W / sigma**2``, shape (d, d)."""
         return np.asarray(self.scenario.W, float) / self.sigma ** 2
 
     @property
@@ -154,29 +157,36 @@ class BeliefMPC:
 
     @property
     def nx(self) -> int:
+        """Size of the state vector ``(x', vech P')`` (scaled units)."""
         return self.d + len(self.tri)
 
     @property
     def nu(self) -> int:
+        """Size of the input vector ``(u', l, lam', stage slack, terminal slack)``."""
         return self.d + len(self.tri) + self.stage.n_lam + self.stage.n_slack + self.terminal.n_slack
 
     @property
     def lbg(self) -> np.ndarray:
+        """Lower bounds of the stage rows then the terminal rows (what :attr:`rows` returns)."""
         return np.concatenate([self.stage.lbg, self.terminal.lbg])
 
     @property
     def ubg(self) -> np.ndarray:
+        """Upper bounds of the stage rows then the terminal rows."""
         return np.concatenate([self.stage.ubg, self.terminal.ubg])
 
     @property
     def row_names(self) -> tuple[str, ...]:
+        """Names of the rows, stage bundle first, in the order of :attr:`lbg`."""
         return self.stage.names + self.terminal.names
 
     # ---------------------------------------------------- packing helpers
     def vech(self, M):
+        """The lower triangle of a symmetric CasADi matrix ``M`` as a column, column by column."""
         return ca.vertcat(*[M[i, j] for i, j in self.tri])
 
     def unvech(self, v):
+        """The symmetric (d, d) CasADi matrix whose lower triangle is ``v`` (inverse of :meth:`vech`)."""
         M = ca.SX.zeros(self.d, self.d) if isinstance(v, ca.SX) else ca.MX.zeros(self.d, self.d)
         for n, (i, j) in enumerate(self.tri):
             M[i, j] = v[n]
@@ -184,6 +194,7 @@ class BeliefMPC:
         return M
 
     def unpack_state(self, s):
+        """``(x, P)`` views of a state vector ``s = (x', vech P')``."""
         return s[:self.d], self.unvech(s[self.d:])
 
     def unpack_input(self, v):

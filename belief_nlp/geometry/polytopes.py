@@ -290,6 +290,7 @@ class PolytopeSet:
 
     @property
     def dim(self) -> int:
+        """Dimension d of the space."""
         return int(self.A.shape[2])
 
     def __len__(self) -> int:

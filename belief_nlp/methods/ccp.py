@@ -406,14 +406,22 @@ METHOD = register(Method(
 
 
 def ccp_subproblem(scenario, path, K: int | None = None, alpha: float | None = None):
-    """The first CCP step from ``path``'s warm start as a ``cvxpy.Problem``.
+    """The convex subproblem of the first CCP step, as a ``cvxpy.Problem``.
+
+    Built from ``path``'s warm start with its parameters set, ready to
+    ``.solve()``, to print, or to hand to another solver.
 
     Parameters
     ----------
-    scenario : Scenario, or a built-in name / scenario file.
-    path : a feasible BeliefPath, a PlanResult / SmoothResult (its path) or a WarmStart.
-    K : horizon of the warm start (None: one step per path edge).
-    alpha : weight of the information cost (None: the scenario's).
+    scenario : Scenario or str
+        The scenario, or a built-in name / scenario file.
+    path : BeliefPath, result or WarmStart
+        A feasible path (or a plan or smoothing result holding one), or a
+        warm start used as it is.
+    K : int, optional
+        Horizon of the warm start; None as in :func:`belief_nlp.warm_start`.
+    alpha : float, optional
+        Information weight; None uses the scenario's.
 
     Returns
     -------
@@ -426,11 +434,19 @@ def ccp_subproblem(scenario, path, K: int | None = None, alpha: float | None = N
         ``prob.solve(solver="CLARABEL")`` is about ten times faster and
         tighter. Neither needs settings (tests/test_ccp_step.py). A solver's
         answer meets the constraints to its tolerance only: check a path with
-        :func:`belief_nlp.verify` (the smoother checks every step exactly). Its variable ``z`` is the
-        model's decision vector in scaled units (lengths in units of sigma =
-        sqrt(max eig W): the means' steps, Q, S, certificates and auxiliaries;
-        docs/architecture.md); :func:`ccp_subproblem_path` maps the solved
-        problem back to a :class:`BeliefPath` in SI units.
+        :func:`belief_nlp.verify` (the smoother checks every step exactly).
+        Its variable ``z`` is the model's decision vector in scaled units
+        (lengths in units of sigma = sqrt(max eig W): the means' steps, Q, S,
+        certificates and auxiliaries; docs/architecture.md);
+        :func:`ccp_subproblem_path` maps the solved problem back to a
+        :class:`BeliefPath` in SI units.
+
+    Raises
+    ------
+    InfeasibleStartError
+        When no feasible warm start can be built from ``path``.
+    ValidationError
+        For bad arguments, naming the argument.
     """
     import copy
 

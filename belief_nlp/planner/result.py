@@ -106,41 +106,62 @@ def _unnum(v: Any) -> float:
 
 @dataclass(eq=False)
 class PlanResult:
-    """Outcome of :func:`belief_nlp.planner.plan`.
+    """Outcome of :func:`belief_nlp.plan` (IG-RRT*).
+
+    Built by the planner; saved with :meth:`save` (JSON or NPZ) and reloaded
+    equal with :meth:`load`.
 
     Attributes
     ----------
-    success : a path was found *and* passed :func:`belief_nlp.verify`.
-    message : one line saying what happened (why it failed, if it did).
-    path : the best :class:`~belief_nlp.BeliefPath` (S_k of each lossless
-        transition, the noise model, ``meta`` with seed and options), or None.
-    cost : planner cost of ``path`` = travel + alpha * information (inf if none).
-    travel : length of the path, metres.
-    information : sum of the edges' information terms in the metric's unit
-        (entropy: nats or bits as ``info_unit``; wasserstein: metres;
-        hellinger: dimensionless).
-    alpha : the information weight used.
-    metric, info_unit, noise : the cost configuration.
-    cost_history : (n,) best cost with k = 1..n nodes in the tree
-        (``cost_history[k-1]``; inf before the first solution). Non-increasing.
-    first_solution_iteration : number of nodes in the tree when the first
-        solution appeared (the authors' iteration ii), or None.
-    tree : :class:`TreeView` of the final tree.
-    stats : counts. ``nodes`` (in the tree, root included), ``attempts``
-        (samples drawn), ``rejected_*`` (samples that got no node, by
-        reason), ``parent_candidates`` / ``rewire_candidates``, ``rewires``,
+    success : bool
+        A path was found *and* passed :func:`belief_nlp.verify`.
+    message : str
+        One line saying what happened (why it failed, if it did).
+    path : BeliefPath or None
+        The best path (S_k of each lossless transition, the noise model,
+        ``meta`` with seed and options), or None.
+    cost : float
+        Planner cost of ``path`` = travel + alpha * information (inf if none).
+    travel : float
+        Length of the path, metres.
+    information : float
+        Sum of the edges' information terms in the metric's unit (entropy:
+        nats or bits as ``info_unit``; wasserstein: metres; hellinger:
+        dimensionless).
+    alpha : float
+        The information weight used.
+    metric, info_unit, noise : str
+        The cost configuration.
+    cost_history : ndarray, shape (n,)
+        Best cost with k = 1..n nodes in the tree (``cost_history[k-1]``; inf
+        before the first solution). Non-increasing.
+    first_solution_iteration : int or None
+        Number of nodes in the tree when the first solution appeared (the
+        authors' iteration ii), or None.
+    tree : TreeView or None
+        The final tree (nodes, parents, costs, beliefs).
+    stats : dict
+        Counts. ``nodes`` (in the tree, root included), ``attempts`` (samples
+        drawn), ``rejected_*`` (samples that got no node, by reason),
+        ``parent_candidates`` / ``rewire_candidates``, ``rewires``,
         ``pruned`` / ``revived`` (branch-and-bound), ``goal_nodes``;
         ``edges_checked``: candidate edges given an exact collision decision;
-        ``collision_checks``: (edge, obstacle) pairs that needed the iterative
-        Theorem-1 minimiser (the rest were decided in closed form);
+        ``collision_checks``: (edge, obstacle) pairs that needed the
+        iterative Theorem-1 minimiser (the rest were decided in closed form);
         ``undecided_pairs``: those of them whose rigorous bounds decided
-        nothing (rejected as collisions, never passed); the
-        ``collision_*`` entries break the decisions down by layer.
-    timings : seconds: ``sample``, ``candidates``, ``collision``, ``rewire``,
+        nothing (rejected as collisions, never passed); the ``collision_*``
+        entries break the decisions down by layer.
+    timings : dict
+        Seconds: ``sample``, ``candidates``, ``collision``, ``rewire``,
         ``prune``, ``verify``, ``total`` (wall) and ``cpu`` (process time).
-    verification : ``VerificationReport.to_dict()`` of the returned path.
-    options : the resolved planner options; seed : the seed;
-    scenario : name of the scenario.
+    verification : dict or None
+        ``VerificationReport.to_dict()`` of the returned path.
+    options : dict
+        The resolved planner options.
+    seed : int or None
+        The seed of the random generator.
+    scenario : str
+        Name of the scenario.
     """
 
     success: bool
@@ -212,6 +233,13 @@ class PlanResult:
 
     # ----------------------------------------------------------- display
     def summary(self) -> str:
+        """A few lines for people: success, cost and its parts, path length, nodes and time.
+
+        Returns
+        -------
+        str
+            Lines separated by newlines, no trailing newline.
+        """
         head = "success" if self.success else "FAILED"
         lines = [f"IG-RRT* {head}: {self.message}"]
         if self.path is not None:

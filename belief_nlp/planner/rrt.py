@@ -80,15 +80,24 @@ def _polytope_volume(poly) -> float:
 class IGRRTStar:
     """The IG-RRT* planner for one scenario and one set of options.
 
+    Call :meth:`plan` to run; the tree of the last run stays available as
+    ``tree_`` (a :class:`~belief_nlp.planner.tree.BeliefTree`).
+    :func:`belief_nlp.plan` is the one-call form.
+
     Parameters
     ----------
-    scenario : :class:`~belief_nlp.Scenario` (or a built-in name / scenario file)
-    **options : any field of :class:`~.options.PlannerOptions`; defaults come
-        from the scenario's ``[planner]`` table, then the built-in defaults.
-        Invalid values raise :class:`~belief_nlp.errors.ValidationError`.
+    scenario : Scenario or str
+        The planning problem, or a built-in name / scenario file.
+    **options
+        Any field of :class:`~belief_nlp.planner.options.PlannerOptions`
+        (``n_nodes``, ``seed``, ``alpha``, ``metric``, ``noise``,
+        ``max_radius``, ...); defaults come from the scenario's ``[planner]``
+        table, then the built-in defaults.
 
-    Call :meth:`plan` to run; the tree of the last run stays available as
-    ``tree_`` (a :class:`~.tree.BeliefTree`).
+    Raises
+    ------
+    ValidationError
+        For an unknown option or an invalid value, naming it.
     """
 
     def __init__(self, scenario: Scenario | str, **options: Any):
@@ -511,20 +520,29 @@ def plan(scenario: Scenario, n_nodes: int = 500, seed: int | None = 0, alpha: fl
 
     Parameters
     ----------
-    scenario : the planning problem, or a built-in name / scenario file for
+    scenario : Scenario or str
+        The planning problem, or a built-in name / scenario file for
         :func:`belief_nlp.load_scenario`.
-    n_nodes : nodes in the final tree (root included).
-    seed : seed of the random generator; the same seed gives the same result.
-    alpha : information weight; None uses ``scenario.alpha``.
-    metric : ``"entropy"`` (default, nats), ``"wasserstein"`` or ``"hellinger"``.
-    noise : ``"per_metre"`` (P_hat = P + W_rate ||dx||, the authors') or
+    n_nodes : int, optional
+        Nodes in the final tree (root included); default 500.
+    seed : int or None, optional
+        Seed of the random generator; the same seed gives the same result.
+    alpha : float, optional
+        Information weight; None uses ``scenario.alpha``.
+    metric : {"entropy", "wasserstein", "hellinger"}, optional
+        The information metric of an edge; ``"entropy"`` (default) in nats.
+    noise : {"per_metre", "per_step"}, optional
+        ``"per_metre"`` (P_hat = P + W_rate ||dx||, the authors') or
         ``"per_step"`` (P_hat = P + W per edge, whatever its length, the
-        smoother's model); None = the scenario's ``[planner] noise``, else
+        smoother's model); None uses the scenario's ``[planner] noise``, else
         per_metre. paper-multi says per_step, so ``smooth(sc, plan(sc).path)``
         works as it is.
-    time_limit : seconds, or None.
-    branch_and_bound : prune nodes that cannot improve on the best path.
-    **options : the other fields of :class:`~.options.PlannerOptions`
+    time_limit : float, optional
+        Wall-time budget in seconds; None for no limit.
+    branch_and_bound : bool, optional
+        Prune nodes that cannot improve on the best path (default True).
+    **options
+        The other fields of :class:`~belief_nlp.planner.options.PlannerOptions`
         (``eig_range``, ``max_radius``, ``gamma``, ``goal_bias``,
         ``convergence_tol``, ``info_unit``, ``progress``, ...).
 
@@ -533,6 +551,13 @@ def plan(scenario: Scenario, n_nodes: int = 500, seed: int | None = 0, alpha: fl
     PlanResult
         ``success`` is True only for a path that passed
         :func:`belief_nlp.verify`; otherwise ``message`` says why.
+
+    Raises
+    ------
+    ValidationError
+        For an unknown option or an invalid value, naming it.
+    ScenarioFileError
+        When ``scenario`` names a file that cannot be read.
     """
     if noise is not None:
         options["noise"] = noise

@@ -57,12 +57,23 @@ class Check:
 
 @dataclass
 class Outcome:
-    """What a method returns.
+    """What a method's ``run`` returns to the driver.
 
-    status : one of :data:`~belief_nlp.smoother.result.STATUSES`.
-    point : the method's answer (None: the driver takes the best accepted iterate).
-    solver : the solver that ran (for the result).
-    stats : raw solver statistics (return status, iterations, times, ...).
+    Parameters
+    ----------
+    status : str
+        One of :data:`~belief_nlp.STATUSES` (``"converged"``, ``"max_iter"``, ...).
+    message : str
+        One sentence saying what happened, for :attr:`SmoothResult.message`.
+    point : Layout or None, optional
+        The method's answer in the model's layout (scaled units); None lets
+        the driver take the best accepted iterate of the history.
+    solver : str, optional
+        The solver that ran (for :attr:`SmoothResult.solver`).
+    stats : dict, optional
+        Raw solver statistics (return status, iterations, times, ...).
+    label : str, optional
+        What answered, when not the method's name (e.g. ``"auto:ccp"``).
     """
 
     status: str
@@ -76,10 +87,54 @@ class Outcome:
 class SmoothingProblem:
     """One smoothing run as a method sees it.
 
-    Attributes: ``scenario``, ``model`` (:class:`~belief_nlp.model.BeliefModel`),
-    ``warm`` (the :class:`WarmStart`), ``start`` (its exactly safe point),
-    ``cost0``, ``max_iter``, ``tol``, ``solver``, ``solver_options``,
-    ``progress``, ``keep_iterates``, ``history``.
+    The driver (:func:`belief_nlp.smooth`) builds it and hands it to the
+    method's ``run(problem, **options)``; a method iterates from
+    :attr:`start`, tests candidates with :meth:`check` and reports each
+    iteration with :meth:`record` (docs/architecture.md, "The contract").
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The planning problem.
+    warm : WarmStart
+        The feasible warm start the run begins from.
+    model : BeliefModel
+        The symbolic model of the scenario at the warm start's horizon
+        (:class:`belief_nlp.model.BeliefModel`, scaled units).
+    max_iter : int
+        Iteration limit of the run.
+    tol : float
+        Relative optimality tolerance.
+    time_limit : float or None
+        Wall-time budget in seconds from ``t0``; None for no limit.
+    t0 : float
+        ``time.perf_counter()`` when the run started.
+    solver : str or None
+        The solver the method should use (None: its default).
+    solver_options : dict
+        Options passed to that solver.
+    progress : bool
+        Show a progress bar (:meth:`progress_bar`).
+    keep_iterates : bool
+        Keep the path of every accepted iterate.
+    callback : callable or None
+        ``callback(record)`` after every iteration; returning True stops the run.
+    method : str
+        The method's name (for records and messages).
+    policy : SafetyPolicy, optional
+        The margins a point must keep to be accepted (docs/safety.md).
+
+    Attributes
+    ----------
+    start : Layout
+        The warm start's exactly safe point (certificates repaired where needed).
+    cost0 : float
+        Cost of ``start``.
+    history : list of IterationRecord
+        One record per iteration, the warm start first (iteration 0).
+    hazards, hazards_scaled : PolytopeSet
+        The scenario's hazards packed for batched checks, in metres and in
+        the model's scaled units.
     """
 
     def __init__(self, scenario: Scenario, warm: WarmStart, model: BeliefModel, *, max_iter: int, tol: float,
@@ -116,12 +171,15 @@ class SmoothingProblem:
     # ------------------------------------------------------------ budget
     @property
     def deadline(self) -> float | None:
+        """The ``time.perf_counter()`` reading at which the run is out of time (None: no limit)."""
         return None if self.time_limit is None else self.t0 + self.time_limit
 
     def time_left(self) -> float | None:
+        """Seconds left before :attr:`deadline` (negative once past it; None: no limit)."""
         return None if self.time_limit is None else self.deadline - time.perf_counter()
 
     def out_of_time(self) -> bool:
+        """True once the time limit is reached; a method stops iterating then."""
         return self.time_limit is not None and time.perf_counter() >= self.deadline
 
     # ------------------------------------------------------------ safety

@@ -97,42 +97,72 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
 
     Parameters
     ----------
-    scenario : Scenario, or a built-in name / scenario file.
-    path : any feasible BeliefPath (planner output, file, hand-made), a
-        PlanResult or SmoothResult (its path), or a :class:`WarmStart`.
-    method : a name from :func:`available_methods` -- "auto" (the default,
-        :data:`DEFAULT_METHOD`): IPOPT on the exact NLP, then CCP from the best
-        exactly safe point when IPOPT's answer is not taken (``result.method``
-        says which answered: "auto:ipopt" or "auto:ccp"); "ccp": the
-        convex-concave procedure, paper section IV, every iterate feasible;
-        "ipopt": the exact NLP by IPOPT alone -- a registered :class:`Method`,
-        or a callable ``fn(problem, **options)`` returning an :class:`Outcome`.
-    K : horizon; None = one step per path edge (see :func:`warm_start`).
-    max_iter : iteration limit; None = the method's own default.
-    tol : relative optimality tolerance (module doc).
-    solver : the method's solver (CCP: any installed CVXPY solver with PSD and
-        exponential cones, default CLARABEL; auto and ipopt: IPOPT, auto's CCP
-        stage takes ``ccp_solver=``); None = the method's default.
-    alpha : information weight; None = the scenario's.
-    time_limit : wall-time budget in seconds, warm start and model build included.
-    solver_options : passed to the solver.
-    keep_iterates : also return the path of every accepted iterate.
-    progress : show a progress bar.
-    sensing : how the warm start sets covariances ("minimal" or "path").
-    callback : ``callback(record)`` after every iteration; returning True stops.
-    verbose : log every iteration (and the method's decisions) to stderr.
-    k_fallback : when no feasible warm start exists at the requested K (per-step
-        noise on every sub-step can make a sub-transition next to an obstacle
-        unsafe), fall back to one step per path edge and say so in
-        ``stats["warm_start"]`` and the message; False raises instead.
-    **options : the method's own options (``bn.available_methods()``;
-        ``get_method(name).options`` documents them). CCP-only options such as
-        ``constraints`` or ``hook`` need ``method="ccp"``.
+    scenario : Scenario or str
+        The scenario, or a built-in name / scenario file.
+    path : BeliefPath, PlanResult, SmoothResult or WarmStart
+        Any feasible path (planner output, file, hand-made), a result (its
+        path is taken), or a :class:`WarmStart` used as it is.
+    method : str, Method or callable, optional
+        A name from :func:`available_methods` -- ``"auto"`` (the default,
+        :data:`DEFAULT_METHOD`): IPOPT on the exact NLP, then CCP from the
+        best exactly safe point when IPOPT's answer is not taken
+        (``result.method`` says which answered: ``"auto:ipopt"`` or
+        ``"auto:ccp"``); ``"ccp"``: the convex-concave procedure, paper
+        section IV, every iterate feasible; ``"ipopt"``: the exact NLP by
+        IPOPT alone; ``"sqp"``: a filter-SQP baseline -- a registered
+        :class:`Method`, or a callable ``fn(problem, **options)`` returning
+        an :class:`Outcome`.
+    K : int, optional
+        Horizon (number of time steps); None gives one step per path edge
+        (see :func:`warm_start`).
+    max_iter : int, optional
+        Iteration limit; None uses the method's own default.
+    tol : float, optional
+        Relative optimality tolerance (default 1e-4; module doc).
+    solver : str, optional
+        The method's solver (CCP: any installed CVXPY solver with PSD and
+        exponential cones, default CLARABEL; auto and ipopt: IPOPT, auto's
+        CCP stage takes ``ccp_solver=``); None uses the method's default.
+    alpha : float, optional
+        Information weight; None uses the scenario's.
+    time_limit : float, optional
+        Wall-time budget in seconds, warm start and model build included.
+    solver_options : dict, optional
+        Options passed to the solver.
+    keep_iterates : bool, optional
+        Also return the path of every accepted iterate (``result.iterates``).
+    progress : bool, optional
+        Show a progress bar.
+    sensing : {"minimal", "path"}, optional
+        How the warm start sets covariances (see :func:`warm_start`).
+    callback : callable, optional
+        ``callback(record)`` after every iteration with its
+        :class:`IterationRecord`; returning True stops the run.
+    verbose : bool, optional
+        Log every iteration (and the method's decisions) to stderr.
+    k_fallback : bool, optional
+        When no feasible warm start exists at the requested K (per-step
+        noise on every sub-step can make a sub-transition next to an
+        obstacle unsafe), fall back to one step per path edge and say so in
+        ``stats["warm_start"]`` and the message (default); False raises instead.
+    **options
+        The method's own options (``get_method(name).options`` documents
+        them). CCP-only options such as ``constraints`` or ``hook`` need
+        ``method="ccp"``.
 
     Returns
     -------
-    SmoothResult: its path is always exactly safe and independently verified,
-    never costlier than the warm start; ``success`` when the method converged.
+    SmoothResult
+        Its path is always exactly safe and independently verified, never
+        costlier than the warm start; ``success`` when the method converged.
+
+    Raises
+    ------
+    ValidationError
+        For bad arguments or method options, and for a solver the method
+        cannot use; the error names the argument.
+    InfeasibleStartError
+        When no feasible warm start can be built from ``path``.
     """
     if verbose:
         with _logging_to_stderr():

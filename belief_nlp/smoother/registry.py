@@ -29,8 +29,16 @@ DEFAULT_METHOD = "auto"
 class Option:
     """One method option: its default, a check and a line of documentation.
 
-    ``check(value)`` returns an error text (the problem) or None when the
-    value is fine."""
+    Parameters
+    ----------
+    default : Any
+        The value used when the caller does not give the option.
+    doc : str
+        One line for listings (``belief-nlp methods``, the reference).
+    check : callable, optional
+        ``check(value) -> str | None``: an error text (the problem) for a bad
+        value, None when the value is fine. Without it any value is taken.
+    """
 
     default: Any
     doc: str
@@ -41,16 +49,34 @@ class Option:
 class Method:
     """A registered smoothing method.
 
-    name : what ``smooth(method=...)`` takes.
-    run : ``run(problem, **options) -> Outcome`` (see
-        :class:`~belief_nlp.smoother.context.SmoothingProblem`).
-    max_iter : default iteration limit (what one iteration is: ``iteration``).
-    options : {name: :class:`Option`}, validated before any work.
-    description, iteration : one line each, for listings.
-    solvers : the ``solver=`` values it accepts (empty: it takes none);
-        ``default_solver`` the one used when ``solver`` is None.
-    check_solver : optional hook ``(solver) -> error text or None`` for
-        methods whose solvers are discovered at run time.
+    Parameters
+    ----------
+    name : str
+        What ``smooth(method=...)`` takes: a word (letters, digits, ``_``, ``-``).
+    run : callable
+        ``run(problem, **options) -> Outcome``; ``problem`` is a
+        :class:`~belief_nlp.SmoothingProblem`, the result an
+        :class:`~belief_nlp.Outcome`.
+    max_iter : int
+        Default iteration limit (what one iteration is: ``iteration``).
+    options : dict of str to Option, optional
+        The method's own keyword options, validated (:meth:`validate`)
+        before any work.
+    description : str, optional
+        One line for listings.
+    iteration : str, optional
+        What one iteration is, for listings (default ``"iteration"``).
+    default_solver : str or None, optional
+        The solver used when ``smooth`` gets ``solver=None``; None when the
+        method takes no ``solver``.
+    check_solver : callable, optional
+        ``check_solver(solver) -> str | None``: an error text for a solver
+        the method cannot use, for methods whose solvers are discovered at
+        run time.
+
+    See Also
+    --------
+    belief_nlp.register_method : add it to the registry.
     """
 
     name: str
@@ -63,8 +89,24 @@ class Method:
     check_solver: Callable[[str], str | None] | None = None
 
     def validate(self, options: dict) -> dict:
-        """Options with defaults filled in; unknown names and bad values raise
-        :class:`ValidationError` naming the option."""
+        """The options with defaults filled in.
+
+        Parameters
+        ----------
+        options : dict
+            Keyword options given by the caller.
+
+        Returns
+        -------
+        dict
+            Every option of the method, given or default.
+
+        Raises
+        ------
+        ValidationError
+            For an unknown name or a value its :class:`Option` check rejects;
+            the error names the option.
+        """
         unknown = sorted(set(options) - set(self.options))
         if unknown:
             known = ", ".join(sorted(self.options)) or "none"
@@ -84,7 +126,29 @@ _REGISTRY: dict[str, Method] = {}
 
 
 def register(method: Method, *, replace: bool = False) -> Method:
-    """Add a method to the registry (``replace=True`` to redefine a name)."""
+    """Add a smoothing method to the registry (``bn.register_method``).
+
+    After it, ``smooth(method=method.name)``, :func:`compare`, studies and the
+    command line's ``--method`` know the method.
+
+    Parameters
+    ----------
+    method : Method
+        The method to add.
+    replace : bool, optional
+        Redefine a name that is registered already (default False).
+
+    Returns
+    -------
+    Method
+        ``method`` itself (so that a module can write ``M = register(Method(...))``).
+
+    Raises
+    ------
+    ValidationError
+        When ``method`` is not a :class:`Method`, its name is not a word, or
+        the name is taken and ``replace`` is False.
+    """
     if not isinstance(method, Method):
         raise ValidationError("method", f"must be a Method, got {type(method).__name__}")
     if not method.name or not method.name.replace("_", "").replace("-", "").isalnum():
@@ -101,8 +165,15 @@ def unregister(name: str) -> None:
 
 
 def available_methods() -> list[str]:
-    """Names of the registered smoothing methods: :data:`DEFAULT_METHOD`
-    first, then the others in registration order (built-ins first)."""
+    """Names of the registered smoothing methods.
+
+    Returns
+    -------
+    list of str
+        :data:`DEFAULT_METHOD` first, then the others in registration order
+        (the built-ins ``ccp``, ``ipopt``, ``sqp`` before methods registered
+        by users).
+    """
     names = list(_REGISTRY)
     if DEFAULT_METHOD in names:
         names.remove(DEFAULT_METHOD)
@@ -111,7 +182,23 @@ def available_methods() -> list[str]:
 
 
 def get_method(name: str) -> Method:
-    """The registered method ``name`` (our error lists the known ones)."""
+    """The registered smoothing method called ``name``.
+
+    Parameters
+    ----------
+    name : str
+        A name from :func:`available_methods`.
+
+    Returns
+    -------
+    Method
+        Its ``options`` document the method's keyword options.
+
+    Raises
+    ------
+    ValidationError
+        (field ``"method"``) for an unknown name; the message lists the known ones.
+    """
     if not isinstance(name, str) or name not in _REGISTRY:
         raise ValidationError("method", f"must be one of {available_methods()} or a callable, got {name!r}")
     return _REGISTRY[name]

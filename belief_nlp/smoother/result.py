@@ -45,11 +45,39 @@ def _same(a: Any, b: Any) -> bool:
 class IterationRecord:
     """One iteration of a smoothing method (iteration 0 is the warm start).
 
-    The fields mean the same for every method: ``cost`` and its parts are the
-    paper's objective at the iterate (SI units, nats); ``accepted`` is True when
-    the iterate passed the method's feasibility test and may become the
-    answer; ``min_margin`` is the smallest constraint margin the method
-    measured (the exact clearance minus chi2 where the method checks exactly).
+    The fields mean the same for every method. A record reads like a dict
+    too (``record["cost"]``).
+
+    Parameters
+    ----------
+    iteration : int
+        0 for the warm start, then 1, 2, ...
+    cost : float
+        The paper's objective at the iterate, ``control + alpha * information``
+        (SI units, nats).
+    control : float
+        Control effort, sum of ||x_k - x_{k-1}||^2 (m^2).
+    information : float
+        Information gathered by sensing (nats).
+    solver_status : str, optional
+        The solver's own status for this iteration.
+    solve_time : float, optional
+        The solver's own time, s.
+    build_time : float, optional
+        Assembling or updating the subproblem, s.
+    wall_time : float, optional
+        The whole iteration, s.
+    solver_iterations : int, optional
+        The solver's inner iterations.
+    accepted : bool, optional
+        True when the iterate passed the method's exact safety check and may
+        become the answer.
+    min_margin : float, optional
+        The smallest constraint margin the method measured (the exact
+        clearance minus chi2 where the method checks exactly); NaN if none.
+    kalman_gap : float, optional
+        Largest relative gap of the solver's information matrices Q_k to the
+        Kalman recursion (Lemma 2); NaN if not measured.
     """
 
     iteration: int
@@ -73,24 +101,46 @@ class IterationRecord:
 class SmoothResult:
     """Outcome of :func:`belief_nlp.smooth` (scipy.optimize-style).
 
+    Built by the smoothing driver; reloaded with :meth:`load`.
+
     Attributes
     ----------
-    path : the smoothed BeliefPath (SI units), always the best *feasible* iterate.
-    cost : sum ||dx||^2 + alpha * information (nats), the paper's objective.
-    control, information : the two parts of ``cost``.
-    success : True when the method converged (see ``status``).
-    status, message : one of :data:`STATUSES` and a human-readable sentence.
-    nit : iterations performed (accepted or not).
-    history : one :class:`IterationRecord` per iteration, index 0 = warm start.
-    method, solver : what produced it.
-    timings : {"setup", "total", "solver"} seconds.
-    verification : ``verify(scenario, path).to_dict()`` of the returned path.
-    initial_cost : cost of the warm start.
-    iterates : with ``keep_iterates``, the path of every accepted iterate
-        (the warm start first).
-    stats : the solver's raw statistics (return status, iterations, times).
-    certificates : (K, J, F) Theorem-1 certificates of the returned path in
-        1/m (hazards as ``scenario.hazards``, faces padded with 0): the proof
+    path : BeliefPath
+        The smoothed path (SI units), always the best exactly safe iterate.
+    cost : float
+        ``sum ||x_k - x_{k-1}||^2 + alpha * information`` (nats): the paper's objective.
+    control, information : float
+        The two parts of ``cost``.
+    success : bool
+        True when the method converged (see ``status``).
+    status : str
+        One of :data:`~belief_nlp.STATUSES`.
+    message : str
+        The status in a sentence.
+    nit : int
+        Iterations performed (accepted or not).
+    history : list of IterationRecord
+        One record per iteration, index 0 the warm start.
+    method : str
+        The method that answered (``"auto:ipopt"``, ``"ccp"``, ...).
+    solver : str
+        The solver it used.
+    alpha : float
+        The information weight of the run.
+    timings : dict
+        ``{"setup", "total", "solver"}`` in seconds.
+    verification : dict
+        ``verify(scenario, path).to_dict()`` of the returned path.
+    initial_cost : float
+        Cost of the warm start.
+    iterates : list of BeliefPath or None
+        With ``keep_iterates``, the path of every accepted iterate (the warm
+        start first).
+    stats : dict
+        The solver's raw statistics (return status, iterations, times).
+    certificates : ndarray or None
+        (K, J, F) Theorem-1 certificates of the returned path in 1/m
+        (hazards as ``scenario.hazards``, faces padded with 0): the proof
         :func:`belief_nlp.verify` checks in closed form (docs/safety.md).
     """
 
@@ -115,17 +165,28 @@ class SmoothResult:
 
     @property
     def x(self) -> np.ndarray:
+        """The smoothed means, ``path.x`` of shape (K+1, d) (scipy's name for the answer)."""
         return self.path.x
 
     @property
     def fun(self) -> float:
+        """The cost, ``cost`` (scipy's name for the objective value)."""
         return self.cost
 
     @property
     def safe(self) -> bool:
+        """True when the independent verifier passed the returned path (``verification["safe"]``)."""
         return bool(self.verification.get("safe", False))
 
     def to_dict(self) -> dict:
+        """The result as JSON-ready data (what :meth:`save` writes).
+
+        Returns
+        -------
+        dict
+            Every field; ``path`` as :meth:`BeliefPath.to_dict`, ``history``
+            as a list of dicts, ``certificates`` as nested lists (or None).
+        """
         out = {k: v for k, v in asdict(self).items() if k not in ("path", "history", "iterates", "certificates")}
         out["certificates"] = None if self.certificates is None else np.asarray(self.certificates).tolist()
         out["path"] = self.path.to_dict()

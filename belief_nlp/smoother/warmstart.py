@@ -62,17 +62,22 @@ _MAX_HALVINGS = 60
 
 @dataclass
 class WarmStart:
-    """A feasible start of the smoother.
+    """A feasible start of the smoother, built by :func:`warm_start`.
 
-    Attributes
+    Parameters
     ----------
-    path : the per-step BeliefPath (SI) the smoother starts from.
-    lam : (K, J, F) certificates of Theorem 1 in SI units (padded faces zero),
-        hazards ordered as ``scenario.hazards``.
-    report : independent verification of ``path``.
-    added_sensing : number of halvings applied to make transitions clear.
-    allocation : "length" (steps in proportion to edge length) or
-        "feasibility" (:func:`allocate_steps`, after the first was infeasible).
+    path : BeliefPath
+        The per-step path (SI units) the smoother starts from.
+    lam : ndarray, shape (K, J, F)
+        Certificates of Theorem 1 in SI units (padded faces zero), hazards
+        ordered as ``scenario.hazards``.
+    report : VerificationReport
+        Independent verification of ``path``.
+    added_sensing : int, optional
+        Number of covariance halvings applied to make transitions clear.
+    allocation : {"length", "feasibility"}, optional
+        How steps were allotted to the path's edges: in proportion to edge
+        length, or by ``allocate_steps`` after the first was infeasible.
     """
 
     path: BeliefPath
@@ -83,6 +88,7 @@ class WarmStart:
 
     @property
     def K(self) -> int:
+        """Number of time steps (transitions) of the warm start."""
         return self.path.K
 
 
@@ -189,13 +195,43 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
                sensing: str = "minimal") -> WarmStart:
     """A feasible initial point of the smoother built from ``path``.
 
-    ``path`` may come from the planner (per-metre noise), a file, or a user's
-    polyline with covariances (see :meth:`BeliefPath.from_covariances`). It must
-    start at the scenario's start mean. See the module docstring for what
-    happens to covariances and sensing. With K larger than the path's edge
-    count, steps are first allotted in proportion to edge length; if that
-    start is infeasible, by :func:`allocate_steps` (``WarmStart.allocation``
-    says which).
+    The means are mapped onto K steps (the polyline is kept), the
+    covariances re-derived for the per-step noise model with as little
+    sensing as keeps every transition clear and the final ellipse in the
+    target, and the Theorem-1 certificates computed; the result is verified
+    (module :mod:`belief_nlp.smoother.warmstart` gives the details).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The planning problem.
+    path : BeliefPath
+        A path from the planner (either noise model), a file, or a user's
+        polyline with covariances (:meth:`BeliefPath.from_covariances`); it
+        must start at the scenario's start mean.
+    K : int, optional
+        Number of time steps; None gives one step per path edge. With more
+        steps than edges, steps are first allotted in proportion to edge
+        length, and if that start is infeasible by ``allocate_steps``
+        (``WarmStart.allocation`` says which). Fewer steps than edges are
+        refused.
+    sensing : {"minimal", "path"}, optional
+        ``"minimal"`` (default): no sensing is taken over from the path, each
+        posterior starts as its prior and is shrunk only where needed;
+        ``"path"``: the path's sensing is kept and more added where needed.
+
+    Returns
+    -------
+    WarmStart
+        The path, its certificates and its verification.
+
+    Raises
+    ------
+    InfeasibleStartError
+        When the means themselves collide or the last mean is outside the
+        target; it names the transition and the obstacle.
+    ValidationError
+        For bad arguments (a K below the number of edges, an unknown ``sensing``).
     """
     try:
         return _warm_start(scenario, path, K, sensing, None)

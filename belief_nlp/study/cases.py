@@ -37,10 +37,20 @@ def _digest(scenario: Scenario) -> str:
 class ScenarioRef:
     """Where a case's scenario comes from.
 
-    kind : "builtin" (ref = name), "family" (ref = "family@seed") or "file"
-        (the scenario's tree travels in ``data``: remote workers need no file).
-    label : the ``scenario`` column of the records.
-    digest : hash of the scenario's content; a worker checks it.
+    Attributes
+    ----------
+    kind : str
+        ``"builtin"`` (``ref`` is the name), ``"family"`` (``ref`` is
+        ``"family@seed"``) or ``"file"`` (the scenario's tree travels in
+        ``data``: remote workers need no file).
+    ref : str
+        The name, family reference or file the scenario came from.
+    label : str
+        The ``scenario`` column of the records.
+    digest : str
+        Hash of the scenario's content; a worker checks it.
+    data : dict or None
+        The scenario's tree for ``kind="file"``.
     """
 
     kind: str

@@ -55,12 +55,26 @@ def clopper_pearson(failures: int, runs: int, level: float = 0.95) -> tuple[floa
 class MonteCarloResult:
     """Outcome of :func:`simulate`.
 
-    runs, failures, rate : runs simulated, runs that failed, failures / runs.
-    ci_low, ci_high : Clopper--Pearson interval at ``level``.
-    collisions, exits, misses : runs that touched an obstacle, left the domain,
-        ended outside the target (a run may count in several).
-    nominal_rate : 1 - confidence of one confidence ellipse (the paper's
-        per-ellipse chance constraint), for comparison.
+    Attributes
+    ----------
+    runs, failures : int
+        Runs simulated, runs that failed.
+    rate : float
+        failures / runs.
+    ci_low, ci_high : float
+        Clopper--Pearson interval of the rate at ``level``.
+    level : float
+        Confidence level of the interval.
+    collisions, exits, misses : int
+        Runs that touched an obstacle, left the domain, ended outside the
+        target (a run may count in several).
+    nominal_rate : float
+        1 - confidence of one confidence ellipse (the paper's per-ellipse
+        chance constraint), for comparison.
+    substeps : int
+        Samples per transition.
+    control : str
+        ``"feedback"`` or ``"open_loop"``, as given to :func:`simulate`.
     """
 
     runs: int
@@ -77,6 +91,8 @@ class MonteCarloResult:
     control: str
 
     def summary(self) -> str:
+        """One line: failed runs, the rate with its Clopper-Pearson interval, the
+        nominal rate, and the failures by kind (collisions, domain exits, target misses)."""
         return (f"{self.failures}/{self.runs} runs failed: rate {self.rate:.4f} "
                 f"[{self.ci_low:.4f}, {self.ci_high:.4f}] ({self.level:.0%} Clopper-Pearson); nominal "
                 f"{self.nominal_rate:.4f} per ellipse; collisions {self.collisions}, domain exits {self.exits}, "

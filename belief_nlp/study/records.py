@@ -93,11 +93,22 @@ class RecordStore:
 
 
 def load_records(directory: str | os.PathLike, latest: bool = True):
-    """The records of a study directory as a pandas DataFrame (one row per case and method).
+    """The records of a study directory as a pandas DataFrame.
 
-    ``latest``: when a case was rerun (``retry_failed``), keep only its last
-    rows. Missing numbers are NaN; JSON-valued columns (``planner``,
-    ``method_options``, ``stats``, ``trace``, ``versions``, ``case``) stay text.
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        A study's output folder (holding ``records.jsonl``).
+    latest : bool, optional
+        When a case was rerun (``retry_failed``), keep only its last rows
+        (default True).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per case and method. Missing numbers are NaN; JSON-valued
+        columns (``planner``, ``method_options``, ``stats``, ``trace``,
+        ``versions``, ``case``) stay text.
     """
     import pandas as pd
 
