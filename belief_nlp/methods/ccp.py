@@ -468,8 +468,19 @@ def ccp_subproblem(scenario, path, K: int | None = None, alpha: float | None = N
 
 
 def ccp_subproblem_path(problem):
-    """The :class:`BeliefPath` (SI units) of a solved :func:`ccp_subproblem`:
-    the step's means and sensing, priors by the Kalman recursion (Lemma 2).
+    """The :class:`BeliefPath` (SI units) of a solved :func:`ccp_subproblem`.
+
+    Parameters
+    ----------
+    problem : cvxpy.Problem
+        A problem returned by :func:`ccp_subproblem`, solved by any solver.
+
+    Returns
+    -------
+    BeliefPath
+        The step's means and sensing; priors by the Kalman recursion (Lemma 2).
+        It meets the constraints to the solver's tolerance: check it with
+        :func:`belief_nlp.verify`.
 
     Raises
     ------
