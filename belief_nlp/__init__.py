@@ -21,6 +21,7 @@ from .methods.ccp import ccp_subproblem
 from .planner import IGRRTStar, PlanResult, plan
 from .compare import compare, records_to_table
 from .study.records import load_records
+from .study.ompl_export import export_ompl_benchmark
 
 # Heavier or optional modules load on first use (plotting pulls in pyplot).
 _LAZY = {"plotting", "export"}
@@ -61,6 +62,7 @@ __all__ = [
     "VerificationReport",
     "belief",
     "compare",
+    "export_ompl_benchmark",
     "geometry",
     "list_scenarios",
     "load_records",
