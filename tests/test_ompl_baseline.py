@@ -149,7 +149,8 @@ def test_threaded_planners_are_refused(sc):
 @needs_ompl
 @pytest.mark.parametrize("kw, field", [({"n_nodes": 100}, "n_nodes"), ({"noise": "per_metre"}, "noise"),
                                        ({"max_radius": 0.3}, "max_radius"), ({"time_limit": 0}, "time_limit"),
-                                       ({"metric": "hellinger"}, "metric"), ({"range": -1.0}, "range")])
+                                       ({"metric": "hellinger"}, "metric"), ({"range": -1.0}, "range"),
+                                       ({"alpha": 1e300}, "alpha"), ({"seed": -1}, "seed")])
 def test_bad_ompl_options_name_the_field(sc, kw, field):
     with pytest.raises(bn.ValidationError) as err:
         bn.plan(sc, planner="ompl:RRTstar", **kw)

@@ -50,6 +50,7 @@ from typing import Any
 
 import numpy as np
 
+from .._limits import MAX_ALPHA
 from ..errors import SolverError, ValidationError
 from ..path import BeliefPath
 from ..scenario import Scenario
@@ -175,7 +176,7 @@ def resolve_ompl_options(planner: str, scenario_alpha: float, **kwargs: Any) -> 
     return OMPLOptions(
         planner=planner,
         seed=None if seed is None else int(seed),
-        alpha=float(scenario_alpha) if alpha is None else _real("alpha", alpha, 0.0),
+        alpha=float(scenario_alpha) if alpha is None else _real("alpha", alpha, 0.0, MAX_ALPHA),
         time_limit=_real("time_limit", o.get("time_limit", 1.0), 0.0, 1e6, low_open=True),
         range=None if "range" not in o else _real("range", o["range"], 0.0, low_open=True),
         goal_bias=None if "goal_bias" not in o else _real("goal_bias", o["goal_bias"], 0.0, 1.0),
