@@ -60,6 +60,9 @@ def test_motion_validity_agrees_with_the_exact_minimiser(sc):
 
 def test_motions_from_the_start_use_its_covariance(sc):
     v = MeanPathValidity(sc, 1e-6)
+    # a state is valid only where a step can end: one step's noise W must fit (here near the wall y = 0)
+    r = np.sqrt(sc.chi2 * np.max(np.linalg.eigvalsh(sc.W)))
+    assert v.state_valid(np.array([0.65, 1.01 * r])) and not v.state_valid(np.array([0.65, 0.99 * r]))
     x0 = np.asarray(sc.x0, float)
     q = x0 + np.array([0.05, 0.0])
     assert v.motion_valid(x0, q) and v.motion_valid(q, x0)
@@ -119,7 +122,7 @@ def test_plan_result_round_trips_with_planner_and_trace(tmp_path, ompl_plan):
 
 
 @needs_ompl
-@pytest.mark.parametrize("name", ["ompl:InformedRRTstar", "ompl:AORRTC"])
+@pytest.mark.parametrize("name", ["ompl:InformedRRTstar", "ompl:AORRTC", "ompl:RRTConnect"])
 def test_other_named_planners(sc, name):
     res = bn.plan(sc, planner=name, time_limit=1.5, alpha=1.0)
     assert res.planner == name

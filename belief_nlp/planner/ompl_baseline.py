@@ -11,9 +11,11 @@ What OMPL is told
 -----------------
 * **State space**: R^d inside the domain's bounding box; the objective is
   OMPL's path length (a standard planner knows nothing of sensing).
-* **State validity**: the mean lies in the domain, outside every obstacle,
-  and the near-exact ellipse ``E(x, P_floor)`` is clear
-  (:meth:`CollisionChecker.shrink_exponent` is 0).
+* **State validity**: a transition can end there: the ellipse of the least
+  covariance at the end of a step, ``E(x, P_floor + W)``, is clear of every
+  obstacle and wall (:meth:`CollisionChecker.shrink_exponent` is 0); the
+  start state with its ``P0``. (Goal samples offered to OMPL pass it too:
+  the bidirectional planners grow a tree from them.)
 * **Motion validity** (checked exactly, never sampled): the transition
   ``x_a -> x_b`` with the scenario's per-step noise ``W`` is certified clear
   by the IG-RRT* planner's own :class:`~.collision.CollisionChecker` (paper
@@ -195,17 +197,17 @@ class MeanPathValidity:
         self.checker = CollisionChecker(scenario, safety_margin)
         self.W = np.asarray(scenario.W, float)
         self.P_floor = _FLOOR * self.W
+        self.P_end = self.P_floor + self.W
         self.x0 = np.asarray(scenario.x0, float)
         self.P0 = np.asarray(scenario.P0, float)
         self.stats = {"state_checks": 0, "motion_checks": 0, "motions_valid": 0}
 
-    def _start_P(self, x: np.ndarray) -> np.ndarray:
-        return self.P0 if np.array_equal(x, self.x0) else self.P_floor
-
     def state_valid(self, x: np.ndarray) -> bool:
-        """The mean is in free space with its near-exact ellipse clear."""
+        """A motion can end here: the ellipse of ``P_floor + W`` (the least covariance at the
+        end of a transition) is clear; at the start, that of ``P0``."""
         self.stats["state_checks"] += 1
-        return self.checker.shrink_exponent(x, self._start_P(x)) == 0
+        P = self.P0 if np.array_equal(x, self.x0) else self.P_end
+        return self.checker.shrink_exponent(x, P) == 0
 
     def motion_valid(self, a: np.ndarray, b: np.ndarray) -> bool:
         """Both directions a -> b and b -> a are certified clear from the near-exact posterior
@@ -257,9 +259,10 @@ def _setup(ob, og, sc: Scenario, opts: OMPLOptions, validity: MeanPathValidity):
     rng = np.random.default_rng(opts.seed)
     tlo, thi = sc.target.bounding_box()
     cand = rng.uniform(tlo, thi, size=(64 * _GOAL_SAMPLES, d))
-    goals = [x for x in cand if validity.in_target(x)][:_GOAL_SAMPLES]
+    goals = [x for x in cand if validity.in_target(x) and validity.state_valid(x)][:_GOAL_SAMPLES]
     if not goals:
-        raise ValidationError("target", "no mean inside the target leaves room for a near-exact ellipse")
+        raise ValidationError("target", "no mean inside the target can end a transition (the noise W of one "
+                                        "step does not fit between the target's neighbours)")
 
     class _Target(ob.GoalSampleableRegion):
         def distanceGoal(self, state) -> float:  # noqa: N802
