@@ -23,6 +23,7 @@ from .methods.ccp import ccp_subproblem, ccp_subproblem_path
 from .planner import IGRRTStar, PlanResult, plan
 from .compare import compare, records_to_table
 from .study.records import load_records
+from .study.ompl_export import export_ompl_benchmark
 
 # Heavier or optional modules load on first use (plotting pulls in pyplot).
 _LAZY = {"plotting", "export"}
@@ -63,6 +64,7 @@ __all__ = [
     "VerificationReport",
     "belief",
     "compare",
+    "export_ompl_benchmark",
     "geometry",
     "list_scenarios",
     "load_records",

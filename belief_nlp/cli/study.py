@@ -1,4 +1,4 @@
-"""``belief-nlp study``: run a declarative solver-comparison study, report on it, list built-ins."""
+"""``belief-nlp study``: run a declarative solver-comparison study, report on it, export it, list built-ins."""
 
 from __future__ import annotations
 
@@ -10,18 +10,20 @@ from .parser import _nonneg_int, _output_args, _positive_int
 
 
 def add_parser(sub) -> None:
-    """Add the ``study`` subcommand (``run``, ``report``, ``list``) to the subparsers ``sub``."""
+    """Add the ``study`` subcommand (``run``, ``report``, ``export``, ``list``) to the subparsers ``sub``."""
     sp = sub.add_parser(
         "study", help="run a solver comparison study (TOML) on a process pool or a Dask cluster; report it",
         description="Solver comparison studies at scale (docs/studies.md). 'run' expands a study file into "
                     "cases (scenarios x seeds x alpha x K x planner settings), runs each case (plan, one warm "
                     "start, every method, verify) on a process pool or a Dask cluster and appends one row per "
                     "(case, method) to DIR/records.jsonl as cases finish; running it again on the same DIR "
-                    "resumes. 'report' writes DIR/report.md and its figures. 'list' shows the built-in studies.",
+                    "resumes. 'report' writes DIR/report.md and its figures. 'export' writes the records as an OMPL "
+                    "benchmark database (Planner Arena). 'list' shows the built-in studies.",
         epilog="Examples:\n  belief-nlp study run study.toml --out results\n"
                "  belief-nlp study run smoke --out smoke --workers 2\n"
                "  belief-nlp study run study.toml --out results --dask tcp://scheduler:8786\n"
-               "  belief-nlp study report results")
+               "  belief-nlp study report results\n"
+               "  belief-nlp study export results --format ompl --out results.db")
     actions = sp.add_subparsers(dest="action", required=True, metavar="ACTION", parser_class=type(sp))
     run = actions.add_parser("run", help="run (or resume) a study",
                              description="Run a study file (or a built-in study name) and stream its records "
@@ -44,6 +46,16 @@ def add_parser(sub) -> None:
     rep.add_argument("directory", type=Path, metavar="DIR", help="the --out folder of 'study run'")
     _output_args(rep, out_default=None)
     rep.set_defaults(func=_cmd_report)
+    ex = actions.add_parser("export", help="write the records in another tool's format (OMPL benchmark database)",
+                            description="Write DIR's records as an OMPL benchmark database (SQLite: experiments, "
+                                        "plannerConfigs, enums, runs, progress) that Planner Arena "
+                                        "(pip install plannerarena) and OMPL's benchmark tools open as they are.",
+                            epilog="Example:\n  belief-nlp study export results --format ompl --out results.db")
+    ex.add_argument("directory", type=Path, metavar="DIR", help="the --out folder of 'study run'")
+    ex.add_argument("--format", choices=("ompl",), default="ompl", help="ompl: OMPL's benchmark database (SQLite)")
+    ex.add_argument("--out", type=Path, required=True, metavar="FILE", help="the database file (replaced)")
+    _output_args(ex, out_default=None)
+    ex.set_defaults(func=_cmd_export)
     ls = actions.add_parser("list", help="list the built-in studies", description="List the built-in studies.")
     _output_args(ls, out_default=None)
     ls.set_defaults(func=_cmd_list)
@@ -76,6 +88,18 @@ def _cmd_report(run: _Run) -> int:
     path = write_report(d)
     if not run.quiet:
         print(f"report: {path}")
+    return EXIT_OK
+
+
+def _cmd_export(run: _Run) -> int:
+    from ..study import export_ompl_benchmark
+
+    a = run.args
+    if not (a.directory / "records.jsonl").exists():
+        raise ValidationError("DIR", f"{a.directory} holds no records.jsonl (the --out folder of 'belief-nlp study run')")
+    path = export_ompl_benchmark(a.directory, a.out)
+    if not run.quiet:
+        print(f"OMPL benchmark database: {path}")
     return EXIT_OK
 
 

@@ -134,7 +134,8 @@ class PlanResult:
         The cost configuration.
     cost_history : ndarray, shape (n,)
         Best cost with k = 1..n nodes in the tree (``cost_history[k-1]``; inf
-        before the first solution). Non-increasing.
+        before the first solution). Non-increasing. OMPL baseline: OMPL's best
+        path length at each improvement (the costs of ``cost_trace``).
     first_solution_iteration : int or None
         Number of nodes in the tree when the first solution appeared (the
         authors' iteration ii), or None.
@@ -162,6 +163,13 @@ class PlanResult:
         The seed of the random generator.
     scenario : str
         Name of the scenario.
+    planner : str
+        ``"igrrt"`` (IG-RRT*) or ``"ompl:<Class>"`` (the OMPL baseline,
+        :mod:`~belief_nlp.planner.ompl_baseline`).
+    cost_trace : list
+        The anytime curve in time: ``[[seconds since the start, best cost],
+        ...]`` at each improvement (IG-RRT*: its planner cost; OMPL: OMPL's
+        objective, the path length in metres).
     """
 
     success: bool
@@ -183,6 +191,8 @@ class PlanResult:
     options: dict = field(default_factory=dict)
     seed: int | None = None
     scenario: str = ""
+    planner: str = "igrrt"
+    cost_trace: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if self.path is not None and not isinstance(self.path, BeliefPath):
@@ -195,6 +205,11 @@ class PlanResult:
             raise ValidationError("cost_history", f"must be a list of numbers: {str(exc)[:200]}") from exc
         history.flags.writeable = False
         self.cost_history = history
+        try:
+            trace = [[float(t), float(c)] for t, c in self.cost_trace]
+        except (TypeError, ValueError) as exc:
+            raise ValidationError("cost_trace", f"must be a list of [seconds, cost] pairs: {str(exc)[:200]}") from exc
+        self.cost_trace = trace
 
     def __eq__(self, other: object) -> bool:
         """Field by field, NaN equal to NaN (a failed run's travel is NaN), so
@@ -241,14 +256,19 @@ class PlanResult:
             Lines separated by newlines, no trailing newline.
         """
         head = "success" if self.success else "FAILED"
-        lines = [f"IG-RRT* {head}: {self.message}"]
+        name = "IG-RRT*" if self.planner == "igrrt" else self.planner
+        lines = [f"{name} {head}: {self.message}"]
         if self.path is not None:
             lines.append(f"  cost {self.cost:.6g} = travel {self.travel:.6g} m + {self.alpha:g} * "
                          f"information {self.information:.6g} ({self.metric}, {self.info_unit})")
-            lines.append(f"  path: {self.path.K} transitions; first solution at node "
-                         f"{self.first_solution_iteration}")
-        lines.append(f"  nodes {self.stats.get('nodes')}, attempts {self.stats.get('attempts')}, "
-                     f"time {self.timings.get('total', float('nan')):.3g} s")
+            first = "" if self.planner != "igrrt" else f"; first solution at node {self.first_solution_iteration}"
+            lines.append(f"  path: {self.path.K} transitions{first}")
+        if self.planner == "igrrt":
+            lines.append(f"  nodes {self.stats.get('nodes')}, attempts {self.stats.get('attempts')}, "
+                         f"time {self.timings.get('total', float('nan')):.3g} s")
+        else:
+            lines.append(f"  iterations {self.stats.get('iterations')}, motions checked "
+                         f"{self.stats.get('motion_checks')}, time {self.timings.get('total', float('nan')):.3g} s")
         return "\n".join(lines)
 
     def __repr__(self) -> str:
@@ -275,6 +295,8 @@ class PlanResult:
             "options": self.options,
             "seed": self.seed,
             "scenario": self.scenario,
+            "planner": self.planner,
+            "cost_trace": self.cost_trace,
         }
 
     def to_dict(self) -> dict[str, Any]:
@@ -307,6 +329,7 @@ class PlanResult:
                 stats=dict(data.get("stats") or {}), timings=dict(data.get("timings") or {}),
                 verification=data.get("verification"), options=dict(data.get("options") or {}),
                 seed=data.get("seed"), scenario=str(data.get("scenario", "")),
+                planner=str(data.get("planner", "igrrt")), cost_trace=list(data.get("cost_trace") or []),
             )
         except ValidationError:
             raise

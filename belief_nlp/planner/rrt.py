@@ -62,7 +62,7 @@ from .result import PlanResult, TreeView
 from .sampling import BeliefSampler
 from .tree import BeliefTree
 
-__all__ = ["IGRRTStar", "plan"]
+__all__ = ["IGRRTStar"]
 
 log = logging.getLogger("belief_nlp.planner")
 
@@ -196,6 +196,7 @@ class IGRRTStar:
         timings = {"sample": 0.0, "candidates": 0.0, "collision": 0.0, "rewire": 0.0, "prune": 0.0}
         self._stats, self._timings = stats, timings
         history: list[float] = [math.inf]
+        trace: list[list[float]] = []           # [[seconds, best cost]] at each improvement
         best, best_node = math.inf, -1
         first_solution: int | None = None
         stop_reason = "node budget reached"
@@ -233,6 +234,7 @@ class IGRRTStar:
                         else:
                             log.debug("node %d: best cost %.6g", tree.n, best)
                         improved = True
+                        trace.append([time.perf_counter() - t_start, best])
                 if o.branch_and_bound and math.isfinite(best) and (improved or tree.n % o.prune_every == 0):
                     self._prune(tree, best, best_node)
                 history.append(best)
@@ -259,7 +261,7 @@ class IGRRTStar:
         stats["undecided_pairs"] = checker.stats["undecided_pairs"]
         timings["tree"] = time.perf_counter() - t_start
         return self._finish(tree, best_node, np.asarray(history), first_solution, stop_reason, stats, timings,
-                            t_start, cpu_start)
+                            t_start, cpu_start, trace)
 
     # --------------------------------------------------------------- iterate
     def _iterate(self, rng, sampler: BeliefSampler, checker: CollisionChecker, tree: BeliefTree,
@@ -441,7 +443,8 @@ class IGRRTStar:
 
     # ----------------------------------------------------------------- finish
     def _finish(self, tree: BeliefTree, best_node: int, history: np.ndarray, first_solution: int | None,
-                stop_reason: str, stats: dict, timings: dict, t_start: float, cpu_start: float) -> PlanResult:
+                stop_reason: str, stats: dict, timings: dict, t_start: float, cpu_start: float,
+                trace: list) -> PlanResult:
         from ..verify import verify
 
         o = self.options
@@ -451,7 +454,7 @@ class IGRRTStar:
                         tree.live[:n].copy(), tree.goal[:n].copy())
         common = dict(alpha=o.alpha, metric=o.metric, info_unit=o.info_unit, noise=o.noise,
                       cost_history=history, first_solution_iteration=first_solution, tree=view, stats=stats,
-                      timings=timings, options=o.to_dict(), seed=o.seed, scenario=sc.name)
+                      timings=timings, options=o.to_dict(), seed=o.seed, scenario=sc.name, cost_trace=trace)
         t0 = time.perf_counter()
         path = None
         report = None
@@ -511,56 +514,3 @@ def _safe_logdet(P: np.ndarray) -> float:
         return float(belief.logdet(P))
     except np.linalg.LinAlgError:
         return -math.inf
-
-
-def plan(scenario: Scenario, n_nodes: int = 500, seed: int | None = 0, alpha: float | None = None,
-         metric: str = "entropy", noise: str | None = None, time_limit: float | None = None,
-         branch_and_bound: bool = True, **options: Any) -> PlanResult:
-    """Plan a minimum-sensing belief path with IG-RRT*.
-
-    Parameters
-    ----------
-    scenario : Scenario or str
-        The planning problem, or a built-in name / scenario file for
-        :func:`belief_nlp.load_scenario`.
-    n_nodes : int, optional
-        Nodes in the final tree (root included); default 500.
-    seed : int or None, optional
-        Seed of the random generator; the same seed gives the same result.
-    alpha : float, optional
-        Information weight; None uses ``scenario.alpha``.
-    metric : {"entropy", "wasserstein", "hellinger"}, optional
-        The information metric of an edge; ``"entropy"`` (default) in nats.
-    noise : {"per_metre", "per_step"}, optional
-        ``"per_metre"`` (P_hat = P + W_rate ||dx||, the authors') or
-        ``"per_step"`` (P_hat = P + W per edge, whatever its length, the
-        smoother's model); None uses the scenario's ``[planner] noise``, else
-        per_metre. paper-multi says per_step, so ``smooth(sc, plan(sc).path)``
-        works as it is.
-    time_limit : float, optional
-        Wall-time budget in seconds; None for no limit.
-    branch_and_bound : bool, optional
-        Prune nodes that cannot improve on the best path (default True).
-    **options
-        The other fields of :class:`~belief_nlp.planner.options.PlannerOptions`
-        (``eig_range``, ``max_radius``, ``gamma``, ``goal_bias``,
-        ``convergence_tol``, ``info_unit``, ``progress``, ...).
-
-    Returns
-    -------
-    PlanResult
-        ``success`` is True only for a path that passed
-        :func:`belief_nlp.verify`; otherwise ``message`` says why.
-
-    Raises
-    ------
-    ValidationError
-        For an unknown option or an invalid value, naming it.
-    ScenarioFileError
-        When ``scenario`` names a file that cannot be read.
-    """
-    if noise is not None:
-        options["noise"] = noise
-    planner = IGRRTStar(scenario, n_nodes=n_nodes, seed=seed, alpha=alpha, metric=metric,
-                        time_limit=time_limit, branch_and_bound=branch_and_bound, **options)
-    return planner.plan()

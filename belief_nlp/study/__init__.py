@@ -17,7 +17,8 @@ cases on a process pool or a Dask cluster and streams the rows to
 ``analysis.py``           qpbenchmark-style table, performance profiles, anytime curves
 ``report.py``             ``DIR/report.md`` and its figures
 ``montecarlo.py``         simulated collision rates with Clopper--Pearson intervals
-``builtin/*.toml``        shipped studies ("smoke", "thesis")
+``ompl_export.py``        the records as an OMPL benchmark database (Planner Arena)
+``builtin/*.toml``        shipped studies ("smoke", "thesis", "baseline")
 ========================  ===================================================
 
 Reference: docs/studies.md.
@@ -28,12 +29,14 @@ from __future__ import annotations
 from .cases import Case, Limits, MethodVariant, ScenarioRef, case_from_dict
 from .executors import StudyRun, run_study
 from .montecarlo import MonteCarloResult, clopper_pearson, simulate
+from .ompl_export import export_ompl_benchmark
 from .records import load_records
 from .runner import TIMING_COLUMNS, run_case
 from .spec import Study, builtin_studies, load_study
 
 __all__ = ["Case", "Limits", "MethodVariant", "MonteCarloResult", "ScenarioRef", "Study", "StudyRun", "TIMING_COLUMNS",
-           "builtin_studies", "case_from_dict", "clopper_pearson", "load_records", "load_study",
+           "builtin_studies", "case_from_dict", "clopper_pearson", "export_ompl_benchmark", "load_records",
+           "load_study",
            "reproduce", "run_case", "run_study", "simulate", "write_report"]
 
 

@@ -8,13 +8,15 @@ a failing case: the rows say why (``status`` "plan_failed",
 Row columns (one row per case and method variant; docs/studies.md):
 
 identity  study, case_key, arm, scenario, scenario_kind, scenario_ref, seed, alpha, K (asked; None = one
-          step per edge), K_used, planner (JSON), planner_<option> (each planner option), method (label),
+          step per edge), K_used, planner (JSON), planner_<option> (each planner option), planner_name
+          ("igrrt" or "ompl:<Class>"), method (label),
           method_name, method_options (JSON)
 outcome   status, success, message, error, safe, min_margin, worst, warm_start_fallback, fallback_reason
 costs     planner_cost (the planner's own objective), warm_start_cost, cost, control, information,
           iterations
 timings   plan_time, warm_start_time, build_time, solve_time, smooth_time, wall_time (plan + warm start +
-          smoothing: the path's total), trace (JSON [[t, best cost], ...] from t = 0 at planning)
+          smoothing: the path's total), trace (JSON [[t, best cost], ...] from t = 0 at planning),
+          plan_trace (JSON [[t, best planner cost], ...]: the planner's anytime curve, PlanResult.cost_trace)
 solver    solver, stats (JSON of SmoothResult.stats)
 safety    mc_runs, mc_failures, mc_rate, mc_ci_low, mc_ci_high, nominal_rate, mc_collisions, mc_exits,
           mc_misses (Monte-Carlo metric: runs that hit an obstacle / left the domain / missed the target)
@@ -41,7 +43,7 @@ __all__ = ["run_case", "TIMING_COLUMNS", "FAILED", "versions"]
 #: Columns that legitimately differ between two runs of the same case (clock
 #: readings and the compile cache's state); everything else is reproducible.
 TIMING_COLUMNS = ("plan_time", "warm_start_time", "build_time", "solve_time", "smooth_time", "wall_time",
-                  "trace", "stats", "finished_at")
+                  "trace", "plan_trace", "stats", "finished_at")
 #: Statuses of rows without a smoothed path.
 FAILED = ("plan_failed", "warm_start_failed", "error", "timeout")
 #: "none" as a method: the warm start itself, scored on the smoother's objective (the raw plan's arm).
@@ -102,13 +104,14 @@ def _base_row(case: Case, variant: MethodVariant) -> dict:
     for k, val in sorted(case.planner.items()):
         row[f"planner_{k}"] = val if isinstance(val, (int, float, str, bool)) else json.dumps(val)
     row.update({
+        "planner_name": str(case.planner.get("planner", "igrrt")),
         "method": variant.label, "method_name": variant.method, "method_options": canonical_json(variant.options),
         "status": "error", "success": False, "message": "", "error": None, "safe": False,
         "min_margin": math.nan, "worst": "", "warm_start_fallback": False, "fallback_reason": "",
         "planner_cost": math.nan, "warm_start_cost": math.nan, "cost": math.nan, "control": math.nan,
         "information": math.nan, "iterations": 0, "plan_time": math.nan, "warm_start_time": math.nan,
         "build_time": math.nan, "solve_time": math.nan, "smooth_time": math.nan, "wall_time": math.nan,
-        "trace": "[]", "solver": "", "stats": "{}", "mc_runs": 0, "mc_failures": None, "mc_rate": math.nan,
+        "trace": "[]", "plan_trace": "[]", "solver": "", "stats": "{}", "mc_runs": 0, "mc_failures": None, "mc_rate": math.nan,
         "mc_ci_low": math.nan, "mc_ci_high": math.nan, "nominal_rate": math.nan, "mc_collisions": None,
         "mc_exits": None, "mc_misses": None,
         "belief_nlp_version": v["belief-nlp"], "solver_version": "", "versions": canonical_json(v),
@@ -225,6 +228,7 @@ def run_case(case: Case | dict) -> list[dict]:
             planned = plan(sc, seed=case.seed, alpha=case.alpha, **popts)
             common["plan_time"] = time.perf_counter() - t
             common["planner_cost"] = float(planned.cost)
+            common["plan_trace"] = json.dumps(planned.cost_trace)
             if not planned.success or planned.path is None:
                 return _fail_rows(case, variants, "plan_failed", f"planner: {planned.message}", common)
             try:
