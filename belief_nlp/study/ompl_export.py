@@ -169,9 +169,11 @@ def export_ompl_benchmark(records: Any, path: str | os.PathLike) -> Path:
 
     Parameters
     ----------
-    records : a study folder (or its ``records.jsonl``), the DataFrame of
+    records : str, path, DataFrame or iterable of dict
+        A study folder (or its ``records.jsonl``), the DataFrame of
         :func:`belief_nlp.load_records`, or an iterable of record dicts.
-    path : the database file; an existing file is replaced.
+    path : str or path
+        The database file; an existing file is replaced.
 
     Returns
     -------
@@ -183,9 +185,9 @@ def export_ompl_benchmark(records: Any, path: str | os.PathLike) -> Path:
     Raises
     ------
     ValidationError
-        no records, or records of the wrong type (field ``records``).
+        No records, or records of the wrong type (field ``records``).
     ScenarioFileError
-        the file cannot be written (field ``path``).
+        The file cannot be written (field ``path``).
     """
     from .. import __version__
 
