@@ -10,6 +10,10 @@ This module deliberately shares no distance code with :mod:`belief_nlp.geometry`
   ``scipy.optimize.nnls``);
 * target containment by the support function from an eigendecomposition.
 
+The report's certified risk bounds (:mod:`belief_nlp.risk`) are the one
+part computed from the exact geometry: they need the rigorous lower bound
+on each pair's clearance, which sampling cannot give.
+
 Sampling can only overestimate the minimum over s, so the refinement grid and
 the tolerance below matter; the exact minimisation lives in geometry.py and
 tests compare the two.
@@ -34,6 +38,7 @@ from ._limits import MAX_VERIFY_SAMPLES
 from .errors import ValidationError
 from .path import BeliefPath
 from .polytope import Polytope
+from .risk import RiskBound, path_risk
 from .scenario import Scenario, load_scenario
 
 # Path entries beyond this are not measured (their squares and products
@@ -88,6 +93,11 @@ class VerificationReport:
     certificate_margins : ndarray, shape (K, J), or None
         min(f_0(lam), f_1(lam)) - chi2 of the given certificates (a rigorous
         lower bound on the clearance), or None.
+    risk : RiskBound or None
+        Certified end-to-end collision-probability bounds of the path
+        (:mod:`belief_nlp.risk`: per pair, Boole sums at the step times and
+        in continuous time, and what they bound); None for a path that
+        cannot be measured.
     """
 
     safe: bool
@@ -104,6 +114,13 @@ class VerificationReport:
     problems: list[str] = field(default_factory=list)
     proof: str = "sampling"
     certificate_margins: np.ndarray | None = None
+    risk: RiskBound | None = None
+
+    @property
+    def risk_bound(self) -> float:
+        """The certified bound on the probability of a collision at the step
+        times (``risk.step_time``; NaN when the path cannot be measured)."""
+        return float("nan") if self.risk is None else self.risk.step_time
 
     def __post_init__(self) -> None:
         # Read-only copies, like the path's arrays: a report cannot be edited
@@ -133,6 +150,8 @@ class VerificationReport:
         """
         head = "SAFE" if self.safe else "UNSAFE"
         lines = [f"{head}: min margin {self.min_margin:.4g} (worst: {self.worst})"]
+        if self.risk is not None:
+            lines.append(f"  {self.risk.summary()}")
         lines += [f"  - {p}" for p in self.problems]
         return "\n".join(lines)
 
@@ -144,8 +163,10 @@ class VerificationReport:
         dict
             ``safe``, ``min_margin``, ``worst``, ``problems``, ``proof``, and
             the extremes ``max_kalman_residual``, ``min_target_margin_m`` and
-            ``min_certificate_margin`` (None without certificates); the
-            per-transition arrays are left out.
+            ``min_certificate_margin`` (None without certificates), and the
+            certified step-time risk bound ``risk_step_time`` (the
+            continuous-time bound, ~0.5 s to compute, is ``risk.continuous``);
+            the per-transition arrays are left out.
         """
         return {
             "safe": self.safe,
@@ -157,6 +178,7 @@ class VerificationReport:
             "proof": self.proof,
             "min_certificate_margin": (None if self.certificate_margins is None
                                        else float(np.min(self.certificate_margins, initial=np.inf))),
+            "risk_step_time": None if self.risk is None else self.risk.step_time,
         }
 
 
@@ -427,7 +449,9 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
     with np.errstate(all="ignore"):  # overflow gives NaN margins, which _measure reports
         try:
             report = _measure(scenario, path, hazards, names, n_samples, n_refine, tol)
-            return report if certificates is None else _with_certificates(report, scenario, path, certificates)
+            if certificates is not None:
+                report = _with_certificates(report, scenario, path, certificates)
+            return replace(report, risk=path_risk(scenario, path, certificates))
         except np.linalg.LinAlgError as exc:  # an eigen-solver gave up: nothing is proven
             return _unmeasured_report(path, names, tol, [f"numerical failure while measuring the path: {exc}"])
 

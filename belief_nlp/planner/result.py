@@ -263,6 +263,10 @@ class PlanResult:
                          f"information {self.information:.6g} ({self.metric}, {self.info_unit})")
             first = "" if self.planner != "igrrt" else f"; first solution at node {self.first_solution_iteration}"
             lines.append(f"  path: {self.path.K} transitions{first}")
+            risk = (self.verification or {}).get("risk_step_time")
+            if risk is not None:
+                lines.append(f"  collision probability <= {risk:.3g} at the step times (certified; Boole over "
+                             f"transition-hazard pairs, bn.verify(...).risk)")
         if self.planner == "igrrt":
             lines.append(f"  nodes {self.stats.get('nodes')}, attempts {self.stats.get('attempts')}, "
                          f"time {self.timings.get('total', float('nan')):.3g} s")

@@ -239,6 +239,9 @@ class SmoothResult:
                  f"(solver {self.timings.get('solver', float('nan')):.3g} s); solver {self.solver or '-'}",
                  f"  verified {'safe' if self.safe else 'UNSAFE'} by {v.get('proof', 'sampling')}, "
                  f"min margin {v.get('min_margin', float('nan')):.4g}"]
+        if v.get("risk_step_time") is not None:
+            lines.append(f"  collision probability <= {v['risk_step_time']:.3g} at the step times "
+                         f"(certified; Boole over transition-hazard pairs, bn.verify(...).risk)")
         return "\n".join(lines)
 
     def __repr__(self) -> str:

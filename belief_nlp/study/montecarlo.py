@@ -68,6 +68,11 @@ class MonteCarloResult:
     collisions, exits, misses : int
         Runs that touched an obstacle, left the domain, ended outside the
         target (a run may count in several).
+    hazard_runs, step_hazard_runs : int
+        Runs inside some hazard (obstacle or outside the domain) at any
+        sampled instant, and at one of the K + 1 step times: the events that
+        :class:`~belief_nlp.risk.RiskBound`'s ``continuous`` and ``step_time``
+        bound.
     nominal_rate : float
         1 - confidence of one confidence ellipse (the paper's per-ellipse
         chance constraint), for comparison.
@@ -89,6 +94,8 @@ class MonteCarloResult:
     nominal_rate: float
     substeps: int
     control: str
+    hazard_runs: int = 0
+    step_hazard_runs: int = 0
 
     def summary(self) -> str:
         """One line: failed runs, the rate with its Clopper-Pearson interval, the
@@ -185,6 +192,7 @@ def simulate(scenario: Scenario | str, path: BeliefPath | object, runs: int = 10
     xhat = np.repeat(xbar[0][:, None], R, axis=1)
     exited = _max_slack(x, Ad, bd) > 0.0
     collided = _inside_any(x, obstacles)
+    at_step = exited | collided                               # inside a hazard at a step time (t_0 here)
     s = np.arange(1, n + 1) / n
     for k in range(1, K + 1):
         u = (xbar[k][:, None] - xhat) if control == "feedback" else np.repeat((xbar[k] - xbar[k - 1])[:, None], R, 1)
@@ -195,6 +203,7 @@ def simulate(scenario: Scenario | str, path: BeliefPath | object, runs: int = 10
         exited |= np.any((_max_slack(flat, Ad, bd) > 0.0).reshape(R, n), axis=1)
         collided |= np.any(_inside_any(flat, obstacles).reshape(R, n), axis=1)
         x = np.ascontiguousarray(pts[:, :, -1])
+        at_step |= (_max_slack(x, Ad, bd) > 0.0) | _inside_any(x, obstacles)
         # measurement realising S_k: only the directions S_k informs are measured
         w, V = np.linalg.eigh(0.5 * (path.S[k] + path.S[k].T))
         keep = w > 1e-12 * max(1.0, float(np.max(np.abs(w))))
@@ -217,4 +226,5 @@ def simulate(scenario: Scenario | str, path: BeliefPath | object, runs: int = 10
         nominal = float(chi2.sf(sc.chi2, sc.dim))
     return MonteCarloResult(runs=R, failures=f, rate=f / R, ci_low=lo, ci_high=hi, level=level,
                             collisions=int(collided.sum()), exits=int(exited.sum()), misses=int(missed.sum()),
-                            nominal_rate=nominal, substeps=n, control=control)
+                            nominal_rate=nominal, substeps=n, control=control,
+                            hazard_runs=int((collided | exited).sum()), step_hazard_runs=int(at_step.sum()))

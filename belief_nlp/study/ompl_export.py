@@ -189,7 +189,7 @@ def export_ompl_benchmark(records: Any, path: str | os.PathLike) -> Path:
     ScenarioFileError
         The file cannot be written (field ``path``).
     """
-    from .. import __version__
+    from .._version import __version__
 
     rows = _rows(records)
     if not rows:
