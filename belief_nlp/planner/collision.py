@@ -42,6 +42,7 @@ import math
 import numpy as np
 
 from .. import geometry
+from .screen import HazardScreen
 
 __all__ = ["CollisionChecker"]
 
@@ -131,11 +132,14 @@ class CollisionChecker:
                     kk = o.vertices.shape[0]
                     self.E[i, kk - 1] = o.vertices[0] - o.vertices[-1]
                     self.E[i, kk:] = 0.0
+        # obstacles first, so that screen column j < n_obs is obstacle j
+        self.screen = HazardScreen(obstacles + walls, self.thr, self.thr_witness) if obstacles + walls else None
         target = scenario.target
         self.tA, self.tb = target.A, target.b
-        self.stats = {"edges": 0, "edges_blocked_by_walls": 0, "edges_certified": 0, "edges_witnessed": 0,
-                      "edges_exact": 0, "exact_calls": 0, "pairs_exact": 0, "undecided_pairs": 0,
-                      "ellipses": 0, "ellipses_exact": 0}
+        # edges: checked; screened: decided (or skipped) by the screen alone;
+        # refined: by the sub-interval layers; exact: by the exact minimiser
+        self.stats = {"edges": 0, "edges_screened": 0, "edges_skipped": 0, "edges_refined": 0, "edges_exact": 0,
+                      "exact_calls": 0, "pairs_exact": 0, "undecided_pairs": 0, "ellipses": 0, "ellipses_exact": 0}
 
     # ------------------------------------------------------------------ walls
     def _walls_clear(self, x0, x1, P0, W_e) -> np.ndarray:
@@ -155,7 +159,7 @@ class CollisionChecker:
             return l0 + s * dl - np.sqrt(np.maximum(q0 + s * qw, 0.0))
 
         gmin = np.minimum(np.minimum(g(0.0), g(1.0)), g(s_star))
-        return np.all(gmin >= 0.0, axis=1)
+        return (gmin >= 0.0).all(axis=1)
 
     # -------------------------------------------------- obstacles, row-wise
     def _ellipse_hits(self, x, P, j) -> np.ndarray:
@@ -167,11 +171,19 @@ class CollisionChecker:
         sol = np.linalg.solve(P, np.swapaxes(rel, -1, -2))           # (R, d, k)
         return (np.einsum("rkd,rdk->rk", rel, sol) < self.thr_witness).any(axis=1)
 
-    def _level(self, x0, dx, P0, W_e, e, j, sa, sb):
-        """Decide the rows (edge e, obstacle j, interval [sa, sb]): (hit, clear)."""
+    def _level(self, x0, dx, P0, W_e, e, j, sa, sb, screened: bool = False):
+        """Decide the rows (edge e, obstacle j, interval [sa, sb]): (hit, clear).
+
+        ``screened``: the rows are whole transitions that :class:`.screen.HazardScreen`
+        left open, so its tests (mean segment, face certificates, and in 2-D the
+        end ellipse) are not repeated."""
         xa = x0[e] + sa[:, None] * dx[e]
         xb = x0[e] + sb[:, None] * dx[e]
         Pb = P0[e] + sb[:, None, None] * W_e[e]
+        if screened:
+            hit = np.zeros(e.size, dtype=bool)
+            clear = np.zeros(e.size, dtype=bool)
+            return self._fine(x0, dx, P0, W_e, e, j, sa, sb, xa, xb, Pb, hit, clear, self.dim != 2)
         A, b = self.A[j], self.b[j]
         ax_a = np.einsum("rfd,rd->rf", A, xa)
         ax_b = np.einsum("rfd,rd->rf", A, xb)
@@ -187,8 +199,12 @@ class CollisionChecker:
         slack = np.minimum(ax_a, ax_b) - b
         aPa = np.einsum("rfd,rde,rfe->rf", A, Pb, A)
         clear = ((slack > 0) & (slack * slack >= self.thr * aPa)).any(axis=1) & ~hit
-        r = np.flatnonzero(~hit & ~clear)
-        if r.size:
+        return self._fine(x0, dx, P0, W_e, e, j, sa, sb, xa, xb, Pb, hit, clear, True)
+
+    def _fine(self, x0, dx, P0, W_e, e, j, sa, sb, xa, xb, Pb, hit, clear, end_witness: bool):
+        """The finer layers of :meth:`_level` on its rows still open."""
+        r = (~hit & ~clear).nonzero()[0]
+        if r.size and end_witness:
             # witness at the end of the interval
             hit[r] = self._ellipse_hits(xb[r], Pb[r], j[r])
             r = r[~hit[r]]
@@ -203,18 +219,17 @@ class CollisionChecker:
             hit[r] = self._ellipse_hits(x0[er] + sm[:, None] * dx[er], P0[er] + sm[:, None, None] * W_e[er], j[r])
         return hit, clear
 
-    def _obstacles(self, x0, x1, P0, W_e) -> np.ndarray:
-        """(n,) decision for the obstacles (every edge, every obstacle)."""
-        n, m = x0.shape[0], self.n_obs
-        st = self.stats
+    def _refine(self, x0, x1, P0, W_e, e, j) -> np.ndarray:
+        """Decide the open (edge e, obstacle j) pairs: halve [0, 1] up to ``_DEPTH``
+        times while undecided, then the exact check. Returns the blocked edges,
+        boolean (n,)."""
+        n = x0.shape[0]
         dx = x1 - x0
-        e = np.repeat(np.arange(n), m)
-        j = np.tile(np.arange(m), n)
-        sa = np.zeros(n * m)
-        sb = np.ones(n * m)
+        sa = np.zeros(e.size)
+        sb = np.ones(e.size)
         blocked = np.zeros(n, dtype=bool)
         for depth in range(_DEPTH + 1):
-            hit, clear = self._level(x0, dx, P0, W_e, e, j, sa, sb)
+            hit, clear = self._level(x0, dx, P0, W_e, e, j, sa, sb, screened=depth == 0)
             blocked[e[hit]] = True
             keep = ~hit & ~clear
             keep &= ~blocked[e]
@@ -222,36 +237,87 @@ class CollisionChecker:
             if depth == _DEPTH or e.size == 0:
                 break
             sm = 0.5 * (sa + sb)
-            e = np.repeat(e, 2)
-            j = np.repeat(j, 2)
+            e = e.repeat(2)
+            j = j.repeat(2)
             sa, sb = np.stack([sa, sm], 1).ravel(), np.stack([sm, sb], 1).ravel()
-        out = ~blocked
-        st["edges_witnessed"] += int(np.count_nonzero(blocked))
         undecided = np.zeros(n, dtype=bool)
         undecided[e] = True
-        st["edges_certified"] += int(np.count_nonzero(~blocked & ~undecided))
-        rest = np.flatnonzero(undecided)
+        rest = undecided.nonzero()[0]
         if rest.size:
+            st = self.stats
             st["exact_calls"] += 1
             st["edges_exact"] += rest.size
-            st["pairs_exact"] += rest.size * m
+            st["pairs_exact"] += rest.size * self.n_obs
             lower, upper = geometry.transition_bounds(x0[rest], P0[rest], x1[rest], W_e[rest], self.ps, self.thr,
                                                       max_iter=self.exact_max_iter)
             ok = lower >= self.thr                                    # proven clear
             st["undecided_pairs"] += int(np.count_nonzero(~ok & (upper >= self.thr)))
-            out[rest] = ok.all(axis=1)
+            blocked[rest] = ~ok.all(axis=1)
+        return blocked
+
+    def transitions_clear(self, x0: np.ndarray, P0: np.ndarray, x1: np.ndarray, W_e: np.ndarray,
+                          ordered: int = 0) -> np.ndarray:
+        """(n,) exact decision: is each transition (x0, P0) -> x1 with noise W_e (n, d, d) clear?
+
+        With ``ordered = k``, the first k transitions are alternatives in order of
+        preference of which only the first clear one matters (the planner's
+        parent candidates): the ones after the first transition the screen
+        proves clear are not decided, and come back False
+        (``stats["edges_skipped"]``). All others are decided in full.
+        """
+        n = x0.shape[0]
+        st = self.stats
+        st["edges"] += n
+        if self.screen is None:
+            return np.ones(n, dtype=bool)
+        P1 = P0 + W_e
+        hit, clear = self.screen.certify(x0, x1, P1)
+        blocked = hit.any(axis=1)
+        pending = ~clear                                # open (edge, hazard) pairs of edges not blocked
+        pending[blocked] = False
+        open_ = pending.any(axis=1)
+        skip = ordered
+        if ordered:
+            done = ~blocked[:ordered] & ~open_[:ordered]
+            first = int(done.argmax())
+            if done[first]:
+                skip = first + 1
+                open_[skip:ordered] = False
+                st["edges_skipped"] += ordered - skip
+        rows = open_.nonzero()[0]
+        st["edges_screened"] += n - rows.size
+        if rows.size:
+            self._decide_open(x0, x1, P0, W_e, P1, rows, pending, blocked)
+        out = ~blocked
+        out[skip:ordered] = False
         return out
 
-    def transitions_clear(self, x0: np.ndarray, P0: np.ndarray, x1: np.ndarray, W_e: np.ndarray) -> np.ndarray:
-        """(n,) exact decision: is each transition (x0, P0) -> x1 with noise W_e (n, d, d) clear?"""
-        n = x0.shape[0]
-        self.stats["edges"] += n
-        out = self._walls_clear(x0, x1, P0, W_e)
-        self.stats["edges_blocked_by_walls"] += n - int(np.count_nonzero(out))
-        if self.n_obs and np.any(out):
-            idx = np.flatnonzero(out)
-            out[idx] = self._obstacles(x0[idx], x1[idx], P0[idx], W_e[idx])
-        return out
+    def _decide_open(self, x0, x1, P0, W_e, P1, rows, pending, blocked) -> None:
+        """Decide the edges ``rows`` the certificates left open (their ``pending``
+        pairs): the end witness, the walls in closed form, then the obstacles
+        (:meth:`_refine`). Sets ``blocked`` in place."""
+        m = self.n_obs
+        wit = self.screen.end_witness(x1[rows], P1[rows])
+        if wit is not None:
+            more = (wit & pending[rows]).any(axis=1)
+            if more.any():
+                blocked[rows[more]] = True
+                rows = rows[~more]
+        if rows.size and m < pending.shape[1]:
+            wr = rows[pending[rows, m:].any(axis=1)]
+            if wr.size:
+                # the walls exactly, in closed form
+                ok = self._walls_clear(x0[wr], x1[wr], P0[wr], W_e[wr])
+                if not ok.all():
+                    blocked[wr[~ok]] = True
+                    rows = rows[~blocked[rows]]
+        if rows.size and m:
+            sub = pending[rows, :m]
+            e, j = sub.nonzero()
+            if e.size:
+                st = self.stats
+                st["edges_refined"] += rows.size
+                blocked |= self._refine(x0, x1, P0, W_e, rows[e], j)
 
     # ---------------------------------------------------------------- samples
     def shrink_exponent(self, x: np.ndarray, P: np.ndarray) -> int | None:
@@ -264,19 +330,20 @@ class CollisionChecker:
         """
         self.stats["ellipses"] += 1
         d2 = math.inf
-        if self.wall_a.shape[0]:
-            slack = self.wall_a @ x - self.wall_b
-            if np.any(slack <= 0):
-                return None
-            aPa = np.einsum("li,ij,lj->l", self.wall_a, P, self.wall_a)
-            d2 = float(np.min(slack * slack / aPa))
-        if self.n_obs:
-            slack = np.einsum("mfd,d->mf", self.A, x) - self.b        # > 0: outside that face
-            if np.any(np.all((slack <= 0) | ~self.valid_face, axis=1)):
-                return None
-            aPa = np.einsum("mfd,de,mfe->mf", self.A, P, self.A)
-            ok = (slack > 0) & (slack * slack >= self.thr * np.maximum(aPa, 0.0))
-            if not np.all(np.any(ok, axis=1)):
+        if self.screen is None:
+            return 0
+        inside, slack, aPa = self.screen.ellipse(x, P)
+        if inside.any():
+            return None
+        m = self.n_obs
+        if m < slack.shape[0]:
+            # walls (one face each, after the obstacles): exact in closed form
+            sw = slack[m:, 0]
+            d2 = float((sw * sw / aPa[m:, 0]).min())
+        if m:
+            so = slack[:m]
+            ok = (so > 0) & (so * so >= self.thr * np.maximum(aPa[:m], 0.0))
+            if not ok.any(axis=1).all():
                 self.stats["ellipses_exact"] += 1
                 if self.dim == 2:
                     # the mean is outside every obstacle (checked above)
@@ -295,4 +362,6 @@ class CollisionChecker:
     # ----------------------------------------------------------------- target
     def in_target(self, x: np.ndarray, P: np.ndarray) -> bool:
         """Is E(x, P) inside the target (support function, chi2 with margin)?"""
+        if (self.tb - x @ self.tA.T < 0).any():     # the mean outside: no margin can be >= 0
+            return False
         return bool(np.min(geometry.containment_margins(x, P, self.tA, self.tb, self.thr)) >= 0.0)
