@@ -22,6 +22,17 @@ before a change and after it:
 
 With both labels present the file also gets a ``comparison``: median wall
 and CPU ratios, cost quartiles, and how many seeds gave identical trees.
+
+On a shared machine the load changes between two such runs, so the fair
+comparison is paired: ``--baseline DIR`` (a checkout of the old code, the
+folder that holds its ``belief_nlp`` package) imports the old package next to
+the current one under another name and runs every case with the old code,
+then the new, one after the other; the records go under ``before-paired``
+and ``after-paired`` and the comparison ``paired_comparison`` adds the
+per-run CPU ratios:
+
+    git archive b6ff00d belief_nlp | tar -x -C /tmp/old
+    PYTHONPATH=$PWD python benchmarks/bench_planner_speed.py --label paired --baseline /tmp/old
 """
 
 from __future__ import annotations
@@ -34,8 +45,10 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import hashlib  # noqa: E402
+import importlib  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -58,10 +71,19 @@ def fingerprint(res) -> str:
     return h.hexdigest()
 
 
-def run_one(sc, n: int, seed: int, noise: str) -> dict:
+def baseline_module(folder: Path):
+    """The package ``belief_nlp`` of ``folder``, imported as ``belief_nlp_baseline``
+    (its imports are relative, so it runs next to the current one)."""
+    alias = Path(tempfile.mkdtemp(prefix="bench_baseline_"))
+    (alias / "belief_nlp_baseline").symlink_to(Path(folder).resolve() / "belief_nlp", target_is_directory=True)
+    sys.path.insert(0, str(alias))
+    return importlib.import_module("belief_nlp_baseline")
+
+
+def run_one(sc, n: int, seed: int, noise: str, lib=bn) -> dict:
     load0 = os.getloadavg()
     c0, t0 = time.process_time(), time.perf_counter()
-    res = bn.plan(sc, n_nodes=n, seed=seed, noise=noise)
+    res = lib.plan(sc, n_nodes=n, seed=seed, noise=noise)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     return {"n_nodes": n, "seed": seed, "noise": noise, "success": bool(res.success), "best_cost": res.cost,
             "wall_s": wall, "cpu_s": cpu, "wall_per_node_ms": 1e3 * wall / n, "cpu_per_node_ms": 1e3 * cpu / n,
@@ -96,8 +118,9 @@ def summarise(runs: list[dict], timed_seeds: int) -> list[dict]:
     return rows
 
 
-def compare(before: dict, after: dict) -> list[dict]:
-    """Per (noise, N): speed-up of the medians, cost quartiles, identical trees."""
+def compare(before: dict, after: dict, paired: bool = False) -> list[dict]:
+    """Per (noise, N): speed-up of the medians, cost quartiles, identical trees;
+    ``paired``: also the quartiles of the per-run CPU and wall ratios."""
     out = []
     for rb in before["summary"]:
         ra = next((r for r in after["summary"] if r["noise"] == rb["noise"] and r["n_nodes"] == rb["n_nodes"]), None)
@@ -121,6 +144,10 @@ def compare(before: dict, after: dict) -> list[dict]:
                                                  if fb[s]["success"] and fa[s]["success"]), default=None),
             "mean_load_1min": [rb["mean_load_1min"], ra["mean_load_1min"]],
         })
+        if paired:
+            out[-1]["cpu_ratio_quartiles"] = _quartiles([fb[s]["cpu_s"] / fa[s]["cpu_s"] for s in common])
+            out[-1]["wall_ratio_quartiles"] = _quartiles([fb[s]["wall_s"] / fa[s]["wall_s"] for s in common])
+            out[-1]["total_cpu_ratio"] = (sum(fb[s]["cpu_s"] for s in common) / sum(fa[s]["cpu_s"] for s in common))
     return out
 
 
@@ -131,36 +158,48 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=10, help="timed seeds 0..k-1 (default 10)")
     ap.add_argument("--cost-seeds", type=int, default=20, help="seeds of the N = max(sizes) cost distribution")
     ap.add_argument("--noise", nargs="+", default=["per_step"], choices=["per_step", "per_metre"])
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="folder holding the old belief_nlp package: run old and new alternately (paired)")
     ap.add_argument("--out", type=Path, default=RESULTS / OUT_NAME)
     args = ap.parse_args(argv)
-    sc = bn.load_scenario("paper-multi")
-    bn.plan(sc, n_nodes=200, seed=0)                       # warm-up: imports, first-call caches
+    libs = {args.label: bn}
+    if args.baseline is not None:
+        libs = {"before-paired": baseline_module(args.baseline), "after-paired": bn}
+    scs = {name: lib.load_scenario("paper-multi") for name, lib in libs.items()}
+    for name, lib in libs.items():
+        lib.plan(scs[name], n_nodes=200, seed=0)              # warm-up: imports, first-call caches
     info = machine_info()
-    info["belief_nlp_file"] = bn.__file__
-    runs = []
+    info["belief_nlp_file"] = {name: lib.__file__ for name, lib in libs.items()}
+    runs: dict[str, list] = {name: [] for name in libs}
     t0 = time.perf_counter()
     n_max = max(args.sizes)
     for noise in args.noise:
         for n in args.sizes:
             for seed in range(max(args.seeds, args.cost_seeds) if n == n_max else args.seeds):
-                rec = run_one(sc, n, seed, noise)
-                runs.append(rec)
-                print(f"{noise} N={n} seed={seed}: cost {rec['best_cost']:.6f}  wall {rec['wall_s']:.3f} s  "
-                      f"cpu {rec['cpu_s']:.3f} s  load {rec['load_before'][0]:.2f}", flush=True)
+                for name, lib in libs.items():
+                    rec = run_one(scs[name], n, seed, noise, lib)
+                    runs[name].append(rec)
+                    print(f"{name} {noise} N={n} seed={seed}: cost {rec['best_cost']:.6f}  wall {rec['wall_s']:.3f} s"
+                          f"  cpu {rec['cpu_s']:.3f} s  load {rec['load_before'][0]:.2f}", flush=True)
     info["load_average_end"] = os.getloadavg()
-    record = {"machine": info, "total_seconds": time.perf_counter() - t0, "summary": summarise(runs, args.seeds),
-              "runs": runs}
     data = json.loads(args.out.read_text()) if args.out.exists() else {}
     data.setdefault("benchmark", "IG-RRT* speed on paper-multi (issue 21, item 6)")
-    data.setdefault("records", {})[args.label] = _finite(record)
-    if "before" in data["records"] and "after" in data["records"]:
-        data["comparison"] = compare(data["records"]["before"], data["records"]["after"])
+    for name in libs:
+        record = {"machine": info, "total_seconds": time.perf_counter() - t0,
+                  "summary": summarise(runs[name], args.seeds), "runs": runs[name]}
+        data.setdefault("records", {})[name] = _finite(record)
+        for row in record["summary"]:
+            print(name, json.dumps(row))
+    recs = data["records"]
+    if "before" in recs and "after" in recs:
+        data["comparison"] = compare(recs["before"], recs["after"])
+    if "before-paired" in recs and "after-paired" in recs:
+        data["paired_comparison"] = compare(recs["before-paired"], recs["after-paired"], paired=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(data, indent=1, allow_nan=False))
-    for row in record["summary"]:
-        print(json.dumps(row))
-    for row in data.get("comparison", []):
-        print(json.dumps(row))
+    for key in ("comparison", "paired_comparison"):
+        for row in data.get(key, []):
+            print(key, json.dumps(row))
     print(f"wrote {args.out}")
     return 0
 

@@ -18,13 +18,15 @@ import time
 import numpy as np
 
 from .collision import CollisionChecker
-from .kernels import chol_factors, eigh_single
+from .kernels import _any, chol_factors, eigh_single
 from .sampling import BeliefSampler
 from .tree import BeliefTree, LiveView
 
 __all__ = ["IterationMixin"]
 
 _REL_EPS = 1e-12           # relative tie tolerance for cost comparisons
+_UPPER = ([0, 0, 1], [0, 1, 1])   # (11, 12, 22) entries of a 2x2 matrix
+_LOWER = ([0, 1, 1], [0, 0, 1])   # (11, 21, 22)
 _EIG_FLOOR_FACTOR = 1e-3   # samples shrunk below 1e-3 * eig_range[0] are rejected
 
 
@@ -62,7 +64,8 @@ class IterationMixin:
         w = float(np.linalg.norm(x - xn)) if self.per_metre else 1.0
         P_hat = Pn + w * self.W_edge
         try:
-            L, Linv, _, _ = chol_factors(0.5 * (P_hat + P_hat.T))
+            # (chol_factors reads the symmetric part: no need to form it)
+            L, Linv, _, _ = chol_factors(P_hat)
         except np.linalg.LinAlgError:  # singular prior (P0 = 0 and no motion): keep the sample's P
             return x, Ps
         lam, U = eigh_single(Linv @ Ps @ Linv.T)
@@ -151,9 +154,21 @@ class IterationMixin:
             tm["candidates"] += time.perf_counter() - t1
             return None
         dn = dist[near]
+        k = near.size
+        keep = live_idx[near] != 0              # rewiring: the root is never rewired
         if entries:
-            s = self._priors(live, dn if per_metre else None, near)
-            lossless, info = metric.edges2(s[0], s[1], s[2], Linv[0, 0], Linv[1, 0], Linv[1, 1])
+            # the edges to q from its neighbours and from q to them (for
+            # rewiring, used unless q is hopeless) in one kernel call: rows
+            # (s11, s12, s22) of the priors and (t11, t21, t22) of the factors
+            rnodes = live_idx[near[keep]]
+            S = np.empty((6, k + rnodes.size))
+            S[:3, :k] = self._priors(live, dn if per_metre else None, near)
+            S[3:, :k] = Linv[_LOWER][:, None]
+            pq = P[_UPPER][:, None]
+            S[:3, k:] = pq + self._W_entries * dn[keep] if per_metre else pq + self._W_entries
+            S[3:, k:] = tree.le[:, rnodes]
+            lossless_all, info_all = metric.edges2(*S)
+            lossless, info = lossless_all[:k], info_all[:k]
         else:
             lossless, info = metric.edges_to(live.P[near], dn if per_metre else np.ones(near.size), P, L, Linv)
         Dn = metric.cost(dn, info)
@@ -174,16 +189,11 @@ class IterationMixin:
         # rewiring candidates (superset, with the optimistic cost c_lb of q)
         rw = None
         if not hopeless:
-            keep = live_idx[near] != 0          # the root is never rewired
             rv = near[keep]
             nodes = live_idx[rv]
             dr = dn[keep]
             if entries:
-                q = (P[0, 0], P[0, 1], P[1, 1])
-                w = dr if per_metre else 1.0
-                le = tree.le[:, nodes]
-                lossless_r, info_r = metric.edges2(q[0] + w * W[0, 0], q[1] + w * W[0, 1], q[2] + w * W[1, 1],
-                                                   le[0], le[1], le[2])
+                lossless_r, info_r = lossless_all[k:], info_all[k:]
             else:
                 wr = dr if per_metre else np.ones(rv.size)
                 lossless_r, info_r = metric.edges_from(P, wr, tree.P[nodes], tree.L[nodes], tree.Linv[nodes])
@@ -192,7 +202,7 @@ class IterationMixin:
             okr = lossless_r & (Dr <= r) & (new_lb < tree.cost[nodes] * (1 - _REL_EPS))
             if bnb:
                 okr &= new_lb + tree.h[nodes] <= best * (1 + _REL_EPS)
-            if okr.any():
+            if _any(okr):
                 rw = rv[okr]
                 r_D, r_info, r_d = Dr[okr], info_r[okr], dr[okr]
                 st["rewire_candidates"] += rw.size

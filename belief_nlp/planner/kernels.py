@@ -26,6 +26,14 @@ import math
 
 import numpy as np
 
+# The reductions of the hot paths, called as ufunc methods: ndarray.any() and
+# friends go through a Python wrapper that costs as much as the reduction on
+# the planner's small arrays.
+_any = np.logical_or.reduce
+_all = np.logical_and.reduce
+_min = np.minimum.reduce
+_max = np.maximum.reduce
+
 __all__ = ["congruence_eigvals", "chol_lower", "chol_factors", "eigh_single", "inv_lower", "lower_congruence_eig2"]
 
 
@@ -48,7 +56,7 @@ def _eig2_pair(m11, m12, m22):
     disc = np.sqrt((0.5 * (m11 - m22)) ** 2 + m12 * m12)
     big = half_tr + disc
     det = m11 * m22 - m12 * m12
-    if (big > 0).all():         # always for positive definite input: no masked select needed
+    if _all(big > 0):         # always for positive definite input: no masked select needed
         return det / big, big
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(big > 0, det / big, half_tr - disc), big
@@ -115,7 +123,8 @@ def chol_factors(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
     plain floats than in numpy calls).
     """
     if P.shape == (2, 2):
-        a, b, c = float(P[0, 0]), 0.5 * float(P[0, 1] + P[1, 0]), float(P[1, 1])
+        (a, b01), (b10, c) = P.tolist()
+        b = 0.5 * (b01 + b10)
         if not a > 0:
             raise np.linalg.LinAlgError("matrix is not positive definite")
         l11 = math.sqrt(a)
@@ -142,7 +151,8 @@ def eigh_single(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ``np.linalg.eigh``.
     """
     if M.shape == (2, 2):
-        a, b, c = float(M[0, 0]), 0.5 * float(M[0, 1] + M[1, 0]), float(M[1, 1])
+        (a, b01), (b10, c) = M.tolist()
+        b = 0.5 * (b01 + b10)
         th = 0.5 * math.atan2(2.0 * b, a - c)
         co, si = math.cos(th), math.sin(th)
         big = a * co * co + 2.0 * b * co * si + c * si * si      # along (co, si)
