@@ -182,11 +182,11 @@ class CollisionChecker:
 
         Each pair carries a sub-interval [sa, sb] of [0, 1] (first the whole
         transition), with the means xa, xb at its ends and Pb = P(sb), the
-        largest covariance on it. Per round, on the pairs still open: the face
-        certificates (from the second round on: on [0, 1] the screen did them),
-        in 3-D the witness at s = 1 (in 2-D the screen did it), in 2-D the
-        certificate that the sub-segment whitened by Pb stays sqrt(chi2') away
-        from the polygon, then the witness at the middle sm. An open pair is
+        largest covariance on it. Per round, on the pairs still open: in 2-D
+        the certificate that the sub-segment whitened by Pb stays sqrt(chi2')
+        away from the polygon; in 3-D the face certificates (from the second
+        round on: on [0, 1] the screen did them) and the witness at s = 1 (in
+        2-D the screen did it); then the witness at the middle sm. An open pair is
         split into [sa, sm] and [sm, sb], up to ``_DEPTH`` times; the edges
         still open then go to the exact check. No other test needs repeating
         on a sub-interval: the whole mean segment misses the obstacle (the
@@ -202,18 +202,20 @@ class CollisionChecker:
         Pb = P0[e] + W_e[e]
         blocked = np.zeros(n, dtype=bool)
         for depth in range(_DEPTH + 1):
-            clear = self._face_certificates(j, xa, xb, Pb) if depth else np.zeros(e.size, dtype=bool)
             if self.dim == 2:
                 # every row at once (fewer calls than compressing first): the
-                # sweep certificate, then the middle witness where it fails
+                # sweep certificate (it implies the face certificates: a
+                # capsule beyond a face misses the polygon), then the middle
+                # witness where it fails
                 r = np.arange(e.size)
                 sm = 0.5 * (sa + sb)
                 xm = x0[e] + sm[:, None] * dx[e]
                 Pm = P0[e] + sm[:, None, None] * W_e[e]
                 seg, mid = _sweep_dist2(xa, xb, Pb, xm, Pm, self.V[j], self.E[j])
-                clear |= seg >= self.thr
+                clear = seg >= self.thr
                 hit = (mid < self.thr_witness) & ~clear
             else:
+                clear = self._face_certificates(j, xa, xb, Pb) if depth else np.zeros(e.size, dtype=bool)
                 hit = np.zeros(e.size, dtype=bool)
                 r = (~clear).nonzero()[0]
                 if r.size and depth == 0:
