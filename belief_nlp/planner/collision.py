@@ -3,36 +3,43 @@
 Every decision is exact for the continuous transition x(s) = x_prev +
 s (x_next - x_prev), P(s) = P_prev + s W_e, s in [0, 1] (paper Definition 3):
 no edge is ever accepted because a few sampled ellipses were clear. Cheap
-closed-form layers decide what they can; whatever they leave open goes, in
-one batched call, to :func:`belief_nlp.geometry.transitions_clear` (paper
-Theorem 1 as a 1-D convex minimisation over s).
+layers decide what they can, each a rigorous certificate or witness; what
+they leave open goes, in one batched call, to
+:func:`belief_nlp.geometry.transition_bounds` (paper Theorem 1 as a 1-D
+convex minimisation over s), which accepts on its lower bound only.
 
-* **Walls** (half-spaces {a^T y <= b}, the outside of the domain), exactly
-  in closed form: the transition is clear iff g(s) = (a^T x(s) - b) -
-  sqrt(chi2' a^T P(s) a) >= 0 on [0, 1]; g is linear minus the root of a
-  linear function, hence convex, with a closed-form minimiser.
-* **Obstacles**, per (edge, obstacle) pair and sub-interval [s_a, s_b] of
-  [0, 1] (the interval is halved up to ``_DEPTH`` times while undecided):
+1. **Screen** (:class:`.screen.HazardScreen`), every (edge, hazard) pair of a
+   batch in a few numpy calls: face certificates with P(1), the largest
+   covariance of the sweep; the mean segment meeting the hazard; in 2-D the
+   end ellipse overlapping it. With ``ordered`` parent candidates the edges
+   after the first one the screen proves clear are not decided further.
+2. **Walls** (half-spaces {a^T y <= b}, the outside of the domain) left open,
+   exactly in closed form: the transition is clear iff g(s) = (a^T x(s) - b)
+   - sqrt(chi2' a^T P(s) a) >= 0 on [0, 1]; g is linear minus the root of a
+   linear function, hence convex, with a closed-form minimiser.
+3. **Obstacles** left open, per pair and sub-interval [s_a, s_b] of [0, 1]
+   (halved up to ``_DEPTH`` times while undecided, :meth:`CollisionChecker._refine`):
 
-  - *certificates of clearance*. P(s) <= P(s_b) on the interval, so every
-    ellipse there lies inside E(x(s), P(s_b)). If some face a^T y <= b has
-    min(a^T x(s_a), a^T x(s_b)) - b >= sqrt(chi2' a^T P(s_b) a), they all lie
-    beyond that face (support function; paper Remark 1 with errata 2). In
-    2-D, if the sub-segment whitened by P(s_b) stays at distance >=
-    sqrt(chi2') from the whitened polygon (and does not cross it), the swept
-    ellipse misses the obstacle.
-  - *witnesses of collision*: the mean sub-segment meets the obstacle
-    (Liang-Barsky clipping), or the ellipse at the middle or the end of the
-    interval overlaps it (2-D: exact Mahalanobis distance to the polygon in
-    whitened coordinates; 3-D: a vertex inside the ellipse). One colliding
-    s proves the transition unsafe.
+   - *certificates of clearance*. P(s) <= P(s_b) on the interval, so every
+     ellipse there lies inside E(x(s), P(s_b)). In 2-D: the sub-segment
+     whitened by P(s_b) stays at distance >= sqrt(chi2') from the whitened
+     polygon (and does not cross it), so the swept ellipse misses the
+     obstacle. In 3-D: some face a^T y <= b has min(a^T x(s_a), a^T x(s_b))
+     - b >= sqrt(chi2' a^T P(s_b) a), so they all lie beyond that face
+     (support function; paper Remark 1 with errata 2).
+   - *witnesses of collision*: the ellipse at the middle of the interval
+     (3-D: also at its end) overlaps the obstacle (2-D: exact Mahalanobis
+     distance to the polygon in whitened coordinates; 3-D: a vertex inside
+     the ellipse). One colliding s proves the transition unsafe.
+4. **Exact**: the edges with pairs still open.
 
 chi2' = chi2 (1 + safety_margin) in every layer, including the exact call;
 witnesses use chi2' (1 - 1e-9) so that rounding cannot fake one. The exact
 call accepts a pair only on its rigorous lower bound
 (:func:`belief_nlp.geometry.transition_bounds`); a pair whose bounds do not
 decide it (iteration limit, or a minimum within rounding of chi2') counts as
-a collision and in ``stats["undecided_pairs"]``.
+a collision and in ``stats["undecided_pairs"]``. tests/test_planner_fast_paths.py
+holds every layer to the exact minimum on random and grazing edges.
 """
 
 from __future__ import annotations
