@@ -3,36 +3,43 @@
 Every decision is exact for the continuous transition x(s) = x_prev +
 s (x_next - x_prev), P(s) = P_prev + s W_e, s in [0, 1] (paper Definition 3):
 no edge is ever accepted because a few sampled ellipses were clear. Cheap
-closed-form layers decide what they can; whatever they leave open goes, in
-one batched call, to :func:`belief_nlp.geometry.transitions_clear` (paper
-Theorem 1 as a 1-D convex minimisation over s).
+layers decide what they can, each a rigorous certificate or witness; what
+they leave open goes, in one batched call, to
+:func:`belief_nlp.geometry.transition_bounds` (paper Theorem 1 as a 1-D
+convex minimisation over s), which accepts on its lower bound only.
 
-* **Walls** (half-spaces {a^T y <= b}, the outside of the domain), exactly
-  in closed form: the transition is clear iff g(s) = (a^T x(s) - b) -
-  sqrt(chi2' a^T P(s) a) >= 0 on [0, 1]; g is linear minus the root of a
-  linear function, hence convex, with a closed-form minimiser.
-* **Obstacles**, per (edge, obstacle) pair and sub-interval [s_a, s_b] of
-  [0, 1] (the interval is halved up to ``_DEPTH`` times while undecided):
+1. **Screen** (:class:`.screen.HazardScreen`), every (edge, hazard) pair of a
+   batch in a few numpy calls: face certificates with P(1), the largest
+   covariance of the sweep; the mean segment meeting the hazard; in 2-D the
+   end ellipse overlapping it. With ``ordered`` parent candidates the edges
+   after the first one the screen proves clear are not decided further.
+2. **Walls** (half-spaces {a^T y <= b}, the outside of the domain) left open,
+   exactly in closed form: the transition is clear iff g(s) = (a^T x(s) - b)
+   - sqrt(chi2' a^T P(s) a) >= 0 on [0, 1]; g is linear minus the root of a
+   linear function, hence convex, with a closed-form minimiser.
+3. **Obstacles** left open, per pair and sub-interval [s_a, s_b] of [0, 1]
+   (halved up to ``_DEPTH`` times while undecided, :meth:`CollisionChecker._refine`):
 
-  - *certificates of clearance*. P(s) <= P(s_b) on the interval, so every
-    ellipse there lies inside E(x(s), P(s_b)). If some face a^T y <= b has
-    min(a^T x(s_a), a^T x(s_b)) - b >= sqrt(chi2' a^T P(s_b) a), they all lie
-    beyond that face (support function; paper Remark 1 with errata 2). In
-    2-D, if the sub-segment whitened by P(s_b) stays at distance >=
-    sqrt(chi2') from the whitened polygon (and does not cross it), the swept
-    ellipse misses the obstacle.
-  - *witnesses of collision*: the mean sub-segment meets the obstacle
-    (Liang-Barsky clipping), or the ellipse at the middle or the end of the
-    interval overlaps it (2-D: exact Mahalanobis distance to the polygon in
-    whitened coordinates; 3-D: a vertex inside the ellipse). One colliding
-    s proves the transition unsafe.
+   - *certificates of clearance*. P(s) <= P(s_b) on the interval, so every
+     ellipse there lies inside E(x(s), P(s_b)). In 2-D: the sub-segment
+     whitened by P(s_b) stays at distance >= sqrt(chi2') from the whitened
+     polygon (and does not cross it), so the swept ellipse misses the
+     obstacle. In 3-D: some face a^T y <= b has min(a^T x(s_a), a^T x(s_b))
+     - b >= sqrt(chi2' a^T P(s_b) a), so they all lie beyond that face
+     (support function; paper Remark 1 with errata 2).
+   - *witnesses of collision*: the ellipse at the middle of the interval
+     (3-D: also at its end) overlaps the obstacle (2-D: exact Mahalanobis
+     distance to the polygon in whitened coordinates; 3-D: a vertex inside
+     the ellipse). One colliding s proves the transition unsafe.
+4. **Exact**: the edges with pairs still open.
 
 chi2' = chi2 (1 + safety_margin) in every layer, including the exact call;
 witnesses use chi2' (1 - 1e-9) so that rounding cannot fake one. The exact
 call accepts a pair only on its rigorous lower bound
 (:func:`belief_nlp.geometry.transition_bounds`); a pair whose bounds do not
 decide it (iteration limit, or a minimum within rounding of chi2') counts as
-a collision and in ``stats["undecided_pairs"]``.
+a collision and in ``stats["undecided_pairs"]``. tests/test_planner_fast_paths.py
+holds every layer to the exact minimum on random and grazing edges.
 """
 
 from __future__ import annotations
@@ -42,10 +49,12 @@ import math
 import numpy as np
 
 from .. import geometry
+from .kernels import _all, _any, _min
+from .screen import HazardScreen
 
 __all__ = ["CollisionChecker"]
 
-_DEPTH = 3          # sub-interval halvings before handing a pair to the exact minimiser
+_DEPTH = 4          # sub-interval halvings before handing a pair to the exact minimiser (4: fastest, measured)
 
 
 def _chol2(P: np.ndarray):
@@ -75,30 +84,26 @@ def _boundary_dist2(x, P, V, E) -> np.ndarray:
     t = np.minimum(np.maximum(-(w0 * e0 + w1 * e1) / ee, 0.0), 1.0)
     q0 = w0 + t * e0
     q1 = w1 + t * e1
-    return (q0 * q0 + q1 * q1).min(axis=1)
+    return _min(q0 * q0 + q1 * q1, axis=1)
 
 
-def _segment_polygon_dist2(x0, x1, P, V, E) -> np.ndarray:
-    """Squared Mahalanobis distance under P (R, 2, 2) between the segments
-    [x0, x1] (R, 2) and the polygons (V, E as in :func:`_boundary_dist2`),
-    assuming they do not meet (the caller rules that out): for disjoint
-    convex sets in the plane it is attained at an end point of the segment or
-    at a vertex of the polygon."""
-    L = _chol2(P)
-    w0, w1 = _whiten(V - x0[:, None, :], *L)                         # polygon, origin at x0
-    u0, u1 = _whiten((x1 - x0)[:, None, :], *L)                      # segment is {t u, t in [0, 1]}
-    uu = u0 * u0 + u1 * u1 + 1e-300
-    t = np.minimum(np.maximum((w0 * u0 + w1 * u1) / uu, 0.0), 1.0)
+def _sweep_dist2(xa, xb, Pb, xm, Pm, V, E) -> tuple[np.ndarray, np.ndarray]:
+    """(segment, middle) for rows of sub-intervals: the squared Mahalanobis
+    distance under Pb from each row's polygon (V, E as in
+    :func:`_boundary_dist2`) to the segment [xa, xb], which must not meet
+    it, and under Pm to the point xm. The segment's is attained at one of
+    its ends or at a vertex of the polygon (disjoint convex sets in the
+    plane); the three point distances take one call."""
+    R = xa.shape[0]
+    d = _boundary_dist2(np.concatenate([xa, xb, xm]), np.concatenate([Pb, Pb, Pm]),
+                        np.concatenate([V, V, V]), np.concatenate([E, E, E]))
+    L = _chol2(Pb)
+    w0, w1 = _whiten(V - xa[:, None, :], *L)                         # polygon, origin at xa
+    u0, u1 = _whiten((xb - xa)[:, None, :], *L)                      # segment is {t u, t in [0, 1]}
+    t = np.minimum(np.maximum((w0 * u0 + w1 * u1) / (u0 * u0 + u1 * u1 + 1e-300), 0.0), 1.0)
     r0, r1 = w0 - t * u0, w1 - t * u1
-    best = (r0 * r0 + r1 * r1).min(axis=1)
-    e0, e1 = _whiten(E, *L)
-    ee = e0 * e0 + e1 * e1 + 1e-300
-    for p0, p1 in ((0.0, 0.0), (u0, u1)):
-        a0, a1 = p0 - w0, p1 - w1
-        t = np.minimum(np.maximum((a0 * e0 + a1 * e1) / ee, 0.0), 1.0)
-        q0, q1 = a0 - t * e0, a1 - t * e1
-        best = np.minimum(best, (q0 * q0 + q1 * q1).min(axis=1))
-    return best
+    seg = np.minimum(np.minimum(d[:R], d[R:2 * R]), _min(r0 * r0 + r1 * r1, axis=1))
+    return seg, d[2 * R:]
 
 
 class CollisionChecker:
@@ -131,11 +136,14 @@ class CollisionChecker:
                     kk = o.vertices.shape[0]
                     self.E[i, kk - 1] = o.vertices[0] - o.vertices[-1]
                     self.E[i, kk:] = 0.0
+        # obstacles first, so that screen column j < n_obs is obstacle j
+        self.screen = HazardScreen(obstacles + walls, self.thr, self.thr_witness) if obstacles + walls else None
         target = scenario.target
         self.tA, self.tb = target.A, target.b
-        self.stats = {"edges": 0, "edges_blocked_by_walls": 0, "edges_certified": 0, "edges_witnessed": 0,
-                      "edges_exact": 0, "exact_calls": 0, "pairs_exact": 0, "undecided_pairs": 0,
-                      "ellipses": 0, "ellipses_exact": 0}
+        # edges: checked; screened: decided (or skipped) by the screen alone;
+        # refined: by the sub-interval layers; exact: by the exact minimiser
+        self.stats = {"edges": 0, "edges_screened": 0, "edges_skipped": 0, "edges_refined": 0, "edges_exact": 0,
+                      "exact_calls": 0, "pairs_exact": 0, "undecided_pairs": 0, "ellipses": 0, "ellipses_exact": 0}
 
     # ------------------------------------------------------------------ walls
     def _walls_clear(self, x0, x1, P0, W_e) -> np.ndarray:
@@ -155,7 +163,7 @@ class CollisionChecker:
             return l0 + s * dl - np.sqrt(np.maximum(q0 + s * qw, 0.0))
 
         gmin = np.minimum(np.minimum(g(0.0), g(1.0)), g(s_star))
-        return np.all(gmin >= 0.0, axis=1)
+        return (gmin >= 0.0).all(axis=1)
 
     # -------------------------------------------------- obstacles, row-wise
     def _ellipse_hits(self, x, P, j) -> np.ndarray:
@@ -167,91 +175,157 @@ class CollisionChecker:
         sol = np.linalg.solve(P, np.swapaxes(rel, -1, -2))           # (R, d, k)
         return (np.einsum("rkd,rdk->rk", rel, sol) < self.thr_witness).any(axis=1)
 
-    def _level(self, x0, dx, P0, W_e, e, j, sa, sb):
-        """Decide the rows (edge e, obstacle j, interval [sa, sb]): (hit, clear)."""
-        xa = x0[e] + sa[:, None] * dx[e]
-        xb = x0[e] + sb[:, None] * dx[e]
-        Pb = P0[e] + sb[:, None, None] * W_e[e]
+    def _face_certificates(self, j, xa, xb, Pb) -> np.ndarray:
+        """(R,) a face of obstacle j with every ellipse of the sub-interval
+        beyond it: min(a^T xa, a^T xb) - b >= sqrt(chi2' a^T Pb a) > 0, Pb the
+        largest covariance of the sub-interval (padded faces 0 <= 1 never pass)."""
         A, b = self.A[j], self.b[j]
-        ax_a = np.einsum("rfd,rd->rf", A, xa)
-        ax_b = np.einsum("rfd,rd->rf", A, xb)
-        # witness: the mean sub-segment meets the obstacle (Liang-Barsky: t * den <= num)
-        num = b - ax_a
-        den = ax_b - ax_a
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = num / den
-        lower = np.where(den < 0, ratio, -np.inf).max(axis=1)
-        upper = np.where(den > 0, ratio, np.inf).min(axis=1)
-        hit = (np.maximum(lower, 0.0) <= np.minimum(upper, 1.0)) & ~((den == 0) & (num < 0)).any(axis=1)
-        # certificate: a face with the whole swept ellipse of P(sb) beyond it
-        slack = np.minimum(ax_a, ax_b) - b
+        slack = np.minimum(np.einsum("rfd,rd->rf", A, xa), np.einsum("rfd,rd->rf", A, xb)) - b
         aPa = np.einsum("rfd,rde,rfe->rf", A, Pb, A)
-        clear = ((slack > 0) & (slack * slack >= self.thr * aPa)).any(axis=1) & ~hit
-        r = np.flatnonzero(~hit & ~clear)
-        if r.size:
-            # witness at the end of the interval
-            hit[r] = self._ellipse_hits(xb[r], Pb[r], j[r])
-            r = r[~hit[r]]
-        if r.size and self.dim == 2:
-            # certificate: the swept ellipse of P(sb) misses the polygon
-            clear[r] = _segment_polygon_dist2(xa[r], xb[r], Pb[r], self.V[j[r]], self.E[j[r]]) >= self.thr
-            r = r[~clear[r]]
-        if r.size:
-            # witness in the middle of the interval
-            sm = 0.5 * (sa[r] + sb[r])
-            er = e[r]
-            hit[r] = self._ellipse_hits(x0[er] + sm[:, None] * dx[er], P0[er] + sm[:, None, None] * W_e[er], j[r])
-        return hit, clear
+        return _any((slack > 0) & (slack * slack >= self.thr * aPa), axis=1)
 
-    def _obstacles(self, x0, x1, P0, W_e) -> np.ndarray:
-        """(n,) decision for the obstacles (every edge, every obstacle)."""
-        n, m = x0.shape[0], self.n_obs
-        st = self.stats
+    def _refine(self, x0, x1, P0, W_e, e, j) -> np.ndarray:
+        """Decide the open (edge e, obstacle j) pairs; returns the blocked edges, (n,).
+
+        Each pair carries a sub-interval [sa, sb] of [0, 1] (first the whole
+        transition), with the means xa, xb at its ends and Pb = P(sb), the
+        largest covariance on it. Per round, on the pairs still open: in 2-D
+        the certificate that the sub-segment whitened by Pb stays sqrt(chi2')
+        away from the polygon; in 3-D the face certificates (from the second
+        round on: on [0, 1] the screen did them) and the witness at s = 1 (in
+        2-D the screen did it); then the witness at the middle sm. An open pair is
+        split into [sa, sm] and [sm, sb], up to ``_DEPTH`` times; the edges
+        still open then go to the exact check. No other test needs repeating
+        on a sub-interval: the whole mean segment misses the obstacle (the
+        screen), and every end of a sub-interval was the middle or an end of
+        an earlier one, so its ellipse was tested already.
+        """
+        n = x0.shape[0]
         dx = x1 - x0
-        e = np.repeat(np.arange(n), m)
-        j = np.tile(np.arange(m), n)
-        sa = np.zeros(n * m)
-        sb = np.ones(n * m)
+        sa = np.zeros(e.size)
+        sb = np.ones(e.size)
+        xa = x0[e]
+        xb = x0[e] + dx[e]
+        Pb = P0[e] + W_e[e]
         blocked = np.zeros(n, dtype=bool)
         for depth in range(_DEPTH + 1):
-            hit, clear = self._level(x0, dx, P0, W_e, e, j, sa, sb)
+            if self.dim == 2:
+                # every row at once (fewer calls than compressing first): the
+                # sweep certificate (it implies the face certificates: a
+                # capsule beyond a face misses the polygon), then the middle
+                # witness where it fails
+                r = np.arange(e.size)
+                sm = 0.5 * (sa + sb)
+                xm = x0[e] + sm[:, None] * dx[e]
+                Pm = P0[e] + sm[:, None, None] * W_e[e]
+                seg, mid = _sweep_dist2(xa, xb, Pb, xm, Pm, self.V[j], self.E[j])
+                clear = seg >= self.thr
+                hit = (mid < self.thr_witness) & ~clear
+            else:
+                clear = self._face_certificates(j, xa, xb, Pb) if depth else np.zeros(e.size, dtype=bool)
+                hit = np.zeros(e.size, dtype=bool)
+                r = (~clear).nonzero()[0]
+                if r.size and depth == 0:
+                    hit[r] = self._ellipse_hits(xb[r], Pb[r], j[r])
+                    r = r[~hit[r]]
+                if r.size:
+                    sm = 0.5 * (sa[r] + sb[r])
+                    er = e[r]
+                    xm = x0[er] + sm[:, None] * dx[er]
+                    Pm = P0[er] + sm[:, None, None] * W_e[er]
+                    hit[r] = self._ellipse_hits(xm, Pm, j[r])
             blocked[e[hit]] = True
-            keep = ~hit & ~clear
-            keep &= ~blocked[e]
-            e, j, sa, sb = e[keep], j[keep], sa[keep], sb[keep]
-            if depth == _DEPTH or e.size == 0:
+            if depth == _DEPTH or not r.size:
+                e = e[r[~hit[r] & ~clear[r]]]
                 break
-            sm = 0.5 * (sa + sb)
-            e = np.repeat(e, 2)
-            j = np.repeat(j, 2)
-            sa, sb = np.stack([sa, sm], 1).ravel(), np.stack([sm, sb], 1).ravel()
-        out = ~blocked
-        st["edges_witnessed"] += int(np.count_nonzero(blocked))
+            keep = ~hit[r] & ~clear[r] & ~blocked[e[r]]
+            r, sm, xm, Pm = r[keep], sm[keep], xm[keep], Pm[keep]
+            e = np.concatenate([e[r], e[r]])
+            j = np.concatenate([j[r], j[r]])
+            sa, sb = np.concatenate([sa[r], sm]), np.concatenate([sm, sb[r]])
+            xa, xb = np.concatenate([xa[r], xm]), np.concatenate([xm, xb[r]])
+            Pb = np.concatenate([Pm, Pb[r]])
+            if not e.size:
+                break
         undecided = np.zeros(n, dtype=bool)
         undecided[e] = True
-        st["edges_certified"] += int(np.count_nonzero(~blocked & ~undecided))
-        rest = np.flatnonzero(undecided)
+        undecided &= ~blocked
+        rest = undecided.nonzero()[0]
         if rest.size:
+            st = self.stats
             st["exact_calls"] += 1
             st["edges_exact"] += rest.size
-            st["pairs_exact"] += rest.size * m
+            st["pairs_exact"] += rest.size * self.n_obs
             lower, upper = geometry.transition_bounds(x0[rest], P0[rest], x1[rest], W_e[rest], self.ps, self.thr,
                                                       max_iter=self.exact_max_iter)
             ok = lower >= self.thr                                    # proven clear
             st["undecided_pairs"] += int(np.count_nonzero(~ok & (upper >= self.thr)))
-            out[rest] = ok.all(axis=1)
+            blocked[rest] = ~ok.all(axis=1)
+        return blocked
+
+    def transitions_clear(self, x0: np.ndarray, P0: np.ndarray, x1: np.ndarray, W_e: np.ndarray,
+                          ordered: int = 0) -> np.ndarray:
+        """(n,) exact decision: is each transition (x0, P0) -> x1 with noise W_e (n, d, d) clear?
+
+        With ``ordered = k``, the first k transitions are alternatives in order of
+        preference of which only the first clear one matters (the planner's
+        parent candidates): the ones after the first transition the screen
+        proves clear are not decided, and come back False
+        (``stats["edges_skipped"]``). All others are decided in full.
+        """
+        n = x0.shape[0]
+        st = self.stats
+        st["edges"] += n
+        if self.screen is None:
+            return np.ones(n, dtype=bool)
+        P1 = P0 + W_e
+        hit, clear = self.screen.certify(x0, x1, P1)
+        blocked = _any(hit, axis=1)
+        pending = ~clear                                # open (edge, hazard) pairs of edges not blocked
+        pending[blocked] = False
+        open_ = _any(pending, axis=1)
+        skip = ordered
+        if ordered:
+            done = ~blocked[:ordered] & ~open_[:ordered]
+            first = int(done.argmax())
+            if done[first]:
+                skip = first + 1
+                open_[skip:ordered] = False
+                st["edges_skipped"] += ordered - skip
+        rows = open_.nonzero()[0]
+        st["edges_screened"] += n - rows.size
+        if rows.size:
+            self._decide_open(x0, x1, P0, W_e, P1, rows, pending, blocked)
+        out = ~blocked
+        out[skip:ordered] = False
         return out
 
-    def transitions_clear(self, x0: np.ndarray, P0: np.ndarray, x1: np.ndarray, W_e: np.ndarray) -> np.ndarray:
-        """(n,) exact decision: is each transition (x0, P0) -> x1 with noise W_e (n, d, d) clear?"""
-        n = x0.shape[0]
-        self.stats["edges"] += n
-        out = self._walls_clear(x0, x1, P0, W_e)
-        self.stats["edges_blocked_by_walls"] += n - int(np.count_nonzero(out))
-        if self.n_obs and np.any(out):
-            idx = np.flatnonzero(out)
-            out[idx] = self._obstacles(x0[idx], x1[idx], P0[idx], W_e[idx])
-        return out
+    def _decide_open(self, x0, x1, P0, W_e, P1, rows, pending, blocked) -> None:
+        """Decide the edges ``rows`` the certificates left open (their ``pending``
+        pairs): the end witness, the walls in closed form, then the obstacles
+        (:meth:`_refine`). Sets ``blocked`` in place."""
+        m = self.n_obs
+        wit = self.screen.end_witness(x1[rows], P1[rows])
+        if wit is not None:
+            more = _any(wit & pending[rows], axis=1)
+            if _any(more):
+                blocked[rows[more]] = True
+                rows = rows[~more]
+        if rows.size and m < pending.shape[1]:
+            wr = rows[_any(pending[rows, m:], axis=1)]
+            if wr.size:
+                # the walls exactly, in closed form
+                ok = self._walls_clear(x0[wr], x1[wr], P0[wr], W_e[wr])
+                if not ok.all():
+                    blocked[wr[~ok]] = True
+                    rows = rows[~blocked[rows]]
+        if rows.size and m:
+            sub = pending[rows, :m]
+            e, j = sub.nonzero()
+            if e.size:
+                st = self.stats
+                st["edges_refined"] += rows.size
+                blocked |= self._refine(x0, x1, P0, W_e, rows[e], j)
 
     # ---------------------------------------------------------------- samples
     def shrink_exponent(self, x: np.ndarray, P: np.ndarray) -> int | None:
@@ -264,19 +338,22 @@ class CollisionChecker:
         """
         self.stats["ellipses"] += 1
         d2 = math.inf
-        if self.wall_a.shape[0]:
-            slack = self.wall_a @ x - self.wall_b
-            if np.any(slack <= 0):
-                return None
-            aPa = np.einsum("li,ij,lj->l", self.wall_a, P, self.wall_a)
-            d2 = float(np.min(slack * slack / aPa))
-        if self.n_obs:
-            slack = np.einsum("mfd,d->mf", self.A, x) - self.b        # > 0: outside that face
-            if np.any(np.all((slack <= 0) | ~self.valid_face, axis=1)):
-                return None
-            aPa = np.einsum("mfd,de,mfe->mf", self.A, P, self.A)
-            ok = (slack > 0) & (slack * slack >= self.thr * np.maximum(aPa, 0.0))
-            if not np.all(np.any(ok, axis=1)):
+        if self.screen is None:
+            return 0
+        inside, slack, aPa = self.screen.ellipse(x, P)
+        if _any(inside):
+            return None
+        # a face of every hazard with the ellipse beyond it: clear as it is
+        ok = _any((slack > 0) & (slack * slack >= self.thr * np.maximum(aPa, 0.0)), axis=0)
+        if _all(ok):
+            return 0
+        m = self.n_obs
+        if m < slack.shape[1]:
+            # walls (one face each, after the obstacles): exact in closed form
+            sw = slack[0, m:]
+            d2 = float(_min(sw * sw / aPa[0, m:]))
+        if m:
+            if not _all(ok[:m]):
                 self.stats["ellipses_exact"] += 1
                 if self.dim == 2:
                     # the mean is outside every obstacle (checked above)
@@ -295,4 +372,6 @@ class CollisionChecker:
     # ----------------------------------------------------------------- target
     def in_target(self, x: np.ndarray, P: np.ndarray) -> bool:
         """Is E(x, P) inside the target (support function, chi2 with margin)?"""
+        if (self.tb - x @ self.tA.T < 0).any():     # the mean outside: no margin can be >= 0
+            return False
         return bool(np.min(geometry.containment_margins(x, P, self.tA, self.tb, self.thr)) >= 0.0)

@@ -26,7 +26,15 @@ import math
 
 import numpy as np
 
-__all__ = ["congruence_eigvals", "chol_lower", "chol_factors", "eigh_single", "inv_lower"]
+# The reductions of the hot paths, called as ufunc methods: ndarray.any() and
+# friends go through a Python wrapper that costs as much as the reduction on
+# the planner's small arrays.
+_any = np.logical_or.reduce
+_all = np.logical_and.reduce
+_min = np.minimum.reduce
+_max = np.maximum.reduce
+
+__all__ = ["congruence_eigvals", "chol_lower", "chol_factors", "eigh_single", "inv_lower", "lower_congruence_eig2"]
 
 
 def _cong2(s11, s12, s22, T):
@@ -38,8 +46,8 @@ def _cong2(s11, s12, s22, T):
     return m11, m12, m22
 
 
-def _eig2(m11, m12, m22):
-    """Ascending eigenvalues of symmetric 2x2 matrices from their entries.
+def _eig2_pair(m11, m12, m22):
+    """(smaller, larger) eigenvalues of symmetric 2x2 matrices from their entries.
 
     The larger root is computed directly, the smaller as det / larger, which
     avoids the cancellation of (tr - disc)/2 for ill-conditioned matrices.
@@ -48,9 +56,30 @@ def _eig2(m11, m12, m22):
     disc = np.sqrt((0.5 * (m11 - m22)) ** 2 + m12 * m12)
     big = half_tr + disc
     det = m11 * m22 - m12 * m12
+    if _all(big > 0):         # always for positive definite input: no masked select needed
+        return det / big, big
     with np.errstate(divide="ignore", invalid="ignore"):
-        small = np.where(big > 0, det / big, half_tr - disc)
-    return np.stack([small, big], axis=-1)
+        return np.where(big > 0, det / big, half_tr - disc), big
+
+
+def _eig2(m11, m12, m22):
+    """Ascending eigenvalues (..., 2) of symmetric 2x2 matrices from their entries."""
+    return np.stack(_eig2_pair(m11, m12, m22), axis=-1)
+
+
+def lower_congruence_eig2(s11, s12, s22, t11, t21, t22):
+    """(smaller, larger) eigenvalues of T S T^T for 2x2 S = [[s11, s12], [s12, s22]]
+    and lower-triangular T = [[t11, 0], [t21, t22]] (scalars or arrays).
+
+    The same values as :func:`congruence_eigvals` bit for bit: there the
+    terms with t12 are exact zeros added to the others, here they are left
+    out, with the remaining products in the same order. A factor from
+    :func:`chol_factors` or :func:`inv_lower` is exactly lower triangular.
+    """
+    m11 = t11 * t11 * s11
+    m12 = t11 * t21 * s11 + t11 * t22 * s12
+    m22 = t21 * t21 * s11 + 2.0 * t21 * t22 * s12 + t22 * t22 * s22
+    return _eig2_pair(m11, m12, m22)
 
 
 def congruence_eigvals(P: np.ndarray, w: np.ndarray | float, W: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -94,7 +123,8 @@ def chol_factors(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
     plain floats than in numpy calls).
     """
     if P.shape == (2, 2):
-        a, b, c = float(P[0, 0]), 0.5 * float(P[0, 1] + P[1, 0]), float(P[1, 1])
+        (a, b01), (b10, c) = P.tolist()
+        b = 0.5 * (b01 + b10)
         if not a > 0:
             raise np.linalg.LinAlgError("matrix is not positive definite")
         l11 = math.sqrt(a)
@@ -121,7 +151,8 @@ def eigh_single(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ``np.linalg.eigh``.
     """
     if M.shape == (2, 2):
-        a, b, c = float(M[0, 0]), 0.5 * float(M[0, 1] + M[1, 0]), float(M[1, 1])
+        (a, b01), (b10, c) = M.tolist()
+        b = 0.5 * (b01 + b10)
         th = 0.5 * math.atan2(2.0 * b, a - c)
         co, si = math.cos(th), math.sin(th)
         big = a * co * co + 2.0 * b * co * si + c * si * si      # along (co, si)

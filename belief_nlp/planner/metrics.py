@@ -33,7 +33,7 @@ import math
 import numpy as np
 
 from .. import belief
-from .kernels import congruence_eigvals
+from .kernels import congruence_eigvals, lower_congruence_eig2
 
 __all__ = ["EdgeMetric", "LOSSLESS_RTOL"]
 
@@ -105,6 +105,31 @@ class EdgeMetric:
                    - 2.0 * np.sum(np.sqrt(np.maximum(mu, 0.0)), axis=1))
             return lossless, np.sqrt(np.maximum(val, 0.0))
         return lossless, self._from_lam(lam)
+
+    # ------------------------------------ 2-D, from entries (closed form)
+    # The same values as the methods above, bit for bit, from the entries
+    # (s11, s12, s22) of the priors P_i + w_i W and the entries (t11, t21,
+    # t22) of lower-triangular L^-1 factors (:func:`.kernels.lower_congruence_eig2`).
+    # Not for "wasserstein" (``entries_ok``).
+
+    @property
+    def entries_ok(self) -> bool:
+        """Whether the entry-based 2-D methods serve this metric."""
+        return self.metric != "wasserstein"
+
+    def _from_pair(self, small: np.ndarray, big: np.ndarray, floor: float) -> np.ndarray:
+        if self.metric == "entropy":           # = _from_lam: a sum of two terms is their plain sum
+            return 0.5 * (np.log(np.maximum(small, floor)) + np.log(np.maximum(big, floor)))
+        return self._from_lam(np.maximum(np.stack([small, big], axis=-1), floor))
+
+    def nearest_info2(self, s11, s12, s22, t11: float, t21: float, t22: float) -> np.ndarray:
+        """:meth:`nearest_info` from the priors' entries and the sample's L^-1 entries."""
+        return self._from_pair(*lower_congruence_eig2(s11, s12, s22, t11, t21, t22), 1.0)
+
+    def edges2(self, s11, s12, s22, t11, t21, t22) -> tuple[np.ndarray, np.ndarray]:
+        """(lossless, info) of :meth:`edges_to` / :meth:`edges_from` from entries."""
+        small, big = lower_congruence_eig2(s11, s12, s22, t11, t21, t22)
+        return small >= 1.0 + LOSSLESS_RTOL, self._from_pair(small, big, 1e-300)
 
     def cost(self, length: np.ndarray, info: np.ndarray) -> np.ndarray:
         """Edge cost: length + weight * info."""

@@ -30,10 +30,9 @@ Nodes are beliefs (x, P). One iteration (one new node):
    2.08 to 1.68 in the authors' unit; see benchmarks/bench_planner.py).
 
 Edge collision decisions are exact in continuous time (paper Theorem 1; see
-:mod:`.collision`), never sampled, and the edges of one iteration (the
-parent candidates examined and all rewiring candidates) go to the checker in
-one batch; a second batch is needed only when every candidate of the first
-chunk of parents collides. Step 1-4 samples that get no node do not count
+:mod:`.collision`), never sampled, and the edges of one iteration (all
+parent candidates, in order, and all rewiring candidates) go to the checker
+in one batch; it decides the parents only up to the first clear one. Step 1-4 samples that get no node do not count
 as nodes (as the authors' loop); they count as attempts.
 
 The radius follows the authors: r_n = min(max_radius, gamma (log n / n)^(1/d))
@@ -55,7 +54,7 @@ from ..errors import ValidationError
 from ..path import BeliefPath
 from ..scenario import Scenario, load_scenario
 from .collision import CollisionChecker
-from .kernels import chol_factors, eigh_single
+from .iteration import _REL_EPS, IterationMixin
 from .metrics import EdgeMetric
 from .options import PlannerOptions, default_gamma, resolve_options
 from .result import PlanResult, TreeView
@@ -66,9 +65,6 @@ __all__ = ["IGRRTStar"]
 
 log = logging.getLogger("belief_nlp.planner")
 
-_PARENT_CHUNK = 8          # parent candidates in the first collision batch (doubles after)
-_REL_EPS = 1e-12           # relative tie tolerance for cost comparisons
-_EIG_FLOOR_FACTOR = 1e-3   # samples shrunk below 1e-3 * eig_range[0] are rejected
 
 
 def _polytope_volume(poly) -> float:
@@ -77,7 +73,7 @@ def _polytope_volume(poly) -> float:
     return float(ConvexHull(poly.vertices).volume)
 
 
-class IGRRTStar:
+class IGRRTStar(IterationMixin):
     """The IG-RRT* planner for one scenario and one set of options.
 
     Call :meth:`plan` to run; the tree of the last run stays available as
@@ -113,6 +109,10 @@ class IGRRTStar:
         self.per_metre = o.noise == "per_metre"
         self.W_edge = sc.W_rate if self.per_metre else sc.W
         self.metric = EdgeMetric(o.metric, o.alpha, o.info_unit, self.W_edge)
+        # 2-D: edge costs from entries (closed form); (W11, W12, W22) as a column
+        self._entries = self.dim == 2 and self.metric.entries_ok
+        We = self.W_edge
+        self._W_entries = np.array([[We[0, 0]], [We[0, 1]], [We[1, 1]]]) if self.dim == 2 else None
         self.gamma = o.gamma if o.gamma is not None else default_gamma(self.dim, _polytope_volume(sc.domain))
         # Cost-to-go bound for branch-and-bound, h(x, P) = dist_lb(x) + weight * info_lb(P):
         # dist_lb = largest violated target face (a lower bound of the Euclidean
@@ -125,50 +125,6 @@ class IGRRTStar:
         zeta = math.pi ** (self.dim / 2) / math.gamma(self.dim / 2 + 1)
         self._logdet_max = 2.0 * math.log(_polytope_volume(sc.target) / zeta) - self.dim * math.log(sc.chi2)
         self.tree_: BeliefTree | None = None
-
-    # ---------------------------------------------------------------- helpers
-    def _h(self, x: np.ndarray, logdet_P: float) -> float:
-        dist = max(0.0, float(np.max(self._tA @ x - self._tb)))
-        if self.metric.metric != "entropy":
-            return dist
-        return dist + self.metric.weight * max(0.0, 0.5 * (logdet_P - self._logdet_max))
-
-    def _steer(self, xn: np.ndarray, Pn: np.ndarray, xs: np.ndarray, Ps: np.ndarray,
-               t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Move the sample (xs, Ps) to the fraction t of the way from the nearest node (xn, Pn).
-
-        ``"linear"`` (the authors): x and P interpolated linearly (t = 1 keeps
-        the sample). ``"geodesic"``: x interpolated; with P_hat the prior
-        predicted from the node to the new mean, and P_s = L U D U^T L^T
-        (P_hat = L L^T), P = L U min(D, 1)^t U^T L^T: the matrix-geometric
-        interpolation from P_hat toward the matrix minimum of (P_hat, P_s). It
-        is below P_hat, so the step from the nearest node is always lossless,
-        and its information is t times that of the full step; with t = r / D
-        the nearest node is always a parent candidate. (Eigenvalues are capped
-        at 1 - 1e-6 so that every step senses a little: an exactly sensing-free
-        direction would make S = P^-1 - P_hat^-1 a rounding-noise matrix.)
-        """
-        x = xn + t * (xs - xn)
-        if self.options.steering == "linear":
-            P = Pn + t * (Ps - Pn)
-            return x, 0.5 * (P + P.T)
-        w = float(np.linalg.norm(x - xn)) if self.per_metre else 1.0
-        P_hat = Pn + w * self.W_edge
-        try:
-            L, Linv, _, _ = chol_factors(0.5 * (P_hat + P_hat.T))
-        except np.linalg.LinAlgError:  # singular prior (P0 = 0 and no motion): keep the sample's P
-            return x, Ps
-        lam, U = eigh_single(Linv @ Ps @ Linv.T)
-        lam = np.minimum(np.minimum(np.maximum(lam, 1e-300), 1.0) ** t, 1.0 - 1e-6)
-        LU = L @ U
-        P = (LU * lam) @ LU.T
-        return x, 0.5 * (P + P.T)
-
-    def _radius(self, n_live: int) -> float:
-        n = n_live + 1
-        o = self.options
-        cap = o.max_radius + o.radius_per_alpha * o.alpha
-        return min(cap, self.gamma * (math.log(n) / n) ** (1.0 / self.dim))
 
     # ------------------------------------------------------------------- plan
     def plan(self) -> PlanResult:
@@ -191,8 +147,7 @@ class IGRRTStar:
         stats: dict[str, Any] = {"attempts": 0, "rejected_in_hazard": 0, "rejected_too_small": 0,
                                  "rejected_no_candidate": 0, "rejected_all_colliding": 0,
                                  "parent_candidates": 0, "rewire_candidates": 0, "rewires": 0,
-                                 "pruned": 0, "revived": 0, "hopeless_nodes": 0, "goal_nodes": 0,
-                                 "second_batches": 0}
+                                 "pruned": 0, "revived": 0, "hopeless_nodes": 0, "goal_nodes": 0}
         timings = {"sample": 0.0, "candidates": 0.0, "collision": 0.0, "rewire": 0.0, "prune": 0.0}
         self._stats, self._timings = stats, timings
         history: list[float] = [math.inf]
@@ -223,9 +178,9 @@ class IGRRTStar:
                     continue
                 # best cost: costs of goal nodes may have dropped by rewiring
                 improved = False
-                goals = np.flatnonzero(tree.goal[: tree.n] & tree.live[: tree.n])
+                goals = (tree.goal[: tree.n] & tree.live[: tree.n]).nonzero()[0]
                 if goals.size:
-                    j = int(np.argmin(tree.cost[goals]))
+                    j = int(tree.cost[goals].argmin())
                     if tree.cost[goals[j]] < best:
                         best, best_node = float(tree.cost[goals[j]]), int(goals[j])
                         if first_solution is None:
@@ -263,159 +218,6 @@ class IGRRTStar:
         return self._finish(tree, best_node, np.asarray(history), first_solution, stop_reason, stats, timings,
                             t_start, cpu_start, trace)
 
-    # --------------------------------------------------------------- iterate
-    def _iterate(self, rng, sampler: BeliefSampler, checker: CollisionChecker, tree: BeliefTree,
-                 best: float) -> int | None:
-        """One sampling attempt; returns the new node's index or None."""
-        o = self.options
-        st, tm = self._stats, self._timings
-        metric = self.metric
-        W = self.W_edge
-        bnb = o.branch_and_bound and math.isfinite(best)
-        t0 = time.perf_counter()
-
-        live_idx, X, PX = tree.live_arrays()
-        r = self._radius(live_idx.size)
-        xs, Ps = sampler.draw(rng)
-
-        # nearest in the (matrix-minimum) edge cost, then steer
-        diff = xs - X
-        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        w = dist if self.per_metre else np.ones_like(dist)
-        _, Ls_inv, _, _ = chol_factors(Ps)
-        D = dist + metric.weight * metric.nearest_info(PX, w, Ps, Ls_inv)
-        j = int(np.argmin(D))
-        t = min(1.0, r / D[j]) if D[j] > 0 else 1.0
-        x, P = self._steer(X[j], PX[j], xs, Ps, t)
-
-        # shrink until the ellipse is clear (exact distance -> number of halvings)
-        k = checker.shrink_exponent(x, P)
-        if k is None:
-            st["rejected_in_hazard"] += 1
-            tm["sample"] += time.perf_counter() - t0
-            return None
-        if k:
-            P = P * 0.5 ** k
-        try:
-            L, Linv, logdet, eig_min = chol_factors(P)
-        except np.linalg.LinAlgError:
-            eig_min = 0.0
-        if not eig_min >= _EIG_FLOOR_FACTOR * o.eig_range[0]:
-            st["rejected_too_small"] += 1
-            tm["sample"] += time.perf_counter() - t0
-            return None
-        t1 = time.perf_counter()
-        tm["sample"] += t1 - t0
-
-        # parent candidates: live nodes with a lossless edge of cost <= r (cost >= distance)
-        diff = x - X
-        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        near = np.flatnonzero(dist <= r)
-        wn = dist[near] if self.per_metre else np.ones(near.size)
-        lossless, info = metric.edges_to(PX[near], wn, P, L, Linv)
-        Dn = metric.cost(dist[near], info)
-        ok = lossless & (Dn <= r)
-        cand = near[ok]                         # positions in live_idx
-        if cand.size == 0:
-            st["rejected_no_candidate"] += 1
-            tm["candidates"] += time.perf_counter() - t1
-            return None
-        c_D, c_info, c_w = Dn[ok], info[ok], wn[ok]
-        via = tree.cost[live_idx[cand]] + c_D
-        order = np.argsort(via, kind="stable")
-        c_lb = float(via[order[0]])
-        h_q = self._h(x, logdet)
-        hopeless = bnb and c_lb + h_q > best * (1 + _REL_EPS)
-        st["parent_candidates"] += cand.size
-
-        # rewiring candidates (superset, with the optimistic cost c_lb of q)
-        if hopeless:
-            rw = np.zeros(0, dtype=np.int64)
-        else:
-            rv = near[live_idx[near] != 0]      # the root is never rewired
-            wr = dist[rv] if self.per_metre else np.ones(rv.size)
-            nodes = live_idx[rv]
-            lossless_r, info_r = metric.edges_from(P, wr, tree.P[nodes], tree.L[nodes], tree.Linv[nodes])
-            Dr = metric.cost(dist[rv], info_r)
-            new_lb = c_lb + Dr
-            cur = tree.cost[nodes]
-            okr = lossless_r & (Dr <= r) & (new_lb < cur * (1 - _REL_EPS))
-            if bnb:
-                okr &= new_lb + tree.h[nodes] <= best * (1 + _REL_EPS)
-            rw = rv[okr]
-            r_D, r_info, r_w = Dr[okr], info_r[okr], wr[okr]
-            st["rewire_candidates"] += rw.size
-        t2 = time.perf_counter()
-        tm["candidates"] += t2 - t1
-
-        # collision checks: first chunk of parents + all rewiring edges in one batch
-        parent_pos = -1
-        rw_clear = np.zeros(0, dtype=bool)
-        start, chunk = 0, _PARENT_CHUNK
-        while start < order.size and parent_pos < 0:
-            sel = order[start:start + chunk]
-            pn = live_idx[cand[sel]]
-            x0 = tree.x[pn]
-            P0 = tree.P[pn]
-            x1 = np.broadcast_to(x, x0.shape)
-            We = c_w[sel][:, None, None] * W
-            if start == 0 and rw.size:
-                rn = live_idx[rw]
-                x0 = np.concatenate([x0, np.broadcast_to(x, (rw.size, x.size))])
-                P0 = np.concatenate([P0, np.broadcast_to(P, (rw.size,) + P.shape)])
-                x1 = np.concatenate([x1, tree.x[rn]])
-                We = np.concatenate([We, r_w[:, None, None] * W])
-            else:
-                st["second_batches"] += start > 0
-            clear = checker.transitions_clear(np.ascontiguousarray(x0), np.ascontiguousarray(P0),
-                                              np.ascontiguousarray(x1), We)
-            if start == 0:
-                rw_clear = clear[sel.size:]
-            hit = np.flatnonzero(clear[: sel.size])
-            if hit.size:
-                parent_pos = int(sel[hit[0]])
-            start += sel.size
-            chunk *= 2
-        t3 = time.perf_counter()
-        tm["collision"] += t3 - t2
-        if parent_pos < 0:
-            st["rejected_all_colliding"] += 1
-            return None
-
-        parent = int(live_idx[cand[parent_pos]])
-        cost_q = float(via[parent_pos])
-        goal = checker.in_target(x, P)
-        q = tree.add(x, P, parent, cost_q, float(c_info[parent_pos]), h_q, goal, L=L)
-        if bnb and cost_q + h_q > best * (1 + _REL_EPS):
-            # cannot lead to a better path: dead on arrival (counted, as the
-            # authors' node that their next branch-and-bound step removes)
-            tree.set_live(q, False)
-            st["hopeless_nodes"] += 1
-            st["pruned"] += 1
-            tm["rewire"] += time.perf_counter() - t3
-            return q
-
-        # rewire, cheapest new cost first; re-check against current costs since
-        # an earlier rewire in this loop may already have lowered a subtree
-        if rw.size:
-            good = np.flatnonzero(rw_clear)
-            if good.size:
-                nodes = live_idx[rw[good]]
-                new_cost = cost_q + r_D[good]
-                infos = r_info[good]
-                anc = tree.ancestors(q)
-                for i in np.argsort(new_cost, kind="stable"):
-                    v = int(nodes[i])
-                    nc = float(new_cost[i])
-                    if v in anc or not tree.live[v] or not nc < tree.cost[v] * (1 - _REL_EPS):
-                        continue
-                    sub = tree.reparent(v, q, nc, float(infos[i]))
-                    st["rewires"] += 1
-                    if bnb:
-                        self._revive(tree, sub, best)
-        tm["rewire"] += time.perf_counter() - t3
-        return q
-
     # ------------------------------------------------------ branch-and-bound
     def _prune(self, tree: BeliefTree, best: float, best_node: int) -> None:
         if not self.options.branch_and_bound:
@@ -429,17 +231,9 @@ class IGRRTStar:
             kill[best_node] = False
         cnt = int(np.count_nonzero(kill))
         if cnt:
-            tree.set_live(np.flatnonzero(kill), False)
+            tree.set_live(kill.nonzero()[0], False)
             self._stats["pruned"] += cnt
         self._timings["prune"] += time.perf_counter() - t0
-
-    def _revive(self, tree: BeliefTree, sub: list[int], best: float) -> None:
-        """Nodes pruned earlier whose cost dropped with a rewired ancestor come back."""
-        idx = np.asarray(sub)
-        back = idx[~tree.live[idx] & (tree.cost[idx] + tree.h[idx] <= best * (1 + _REL_EPS))]
-        if back.size:
-            tree.set_live(back, True)
-            self._stats["revived"] += back.size
 
     # ----------------------------------------------------------------- finish
     def _finish(self, tree: BeliefTree, best_node: int, history: np.ndarray, first_solution: int | None,

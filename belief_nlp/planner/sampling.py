@@ -56,10 +56,15 @@ class BeliefSampler:
         goal = self.goal_bias > 0 and rng.random() < self.goal_bias
         x = self._uniform_in("target" if goal else "domain", rng)
         d = self.dim
-        lam = np.empty(d)
-        lam[0] = math.exp(self.log_lo + (self.log_hi - self.log_lo) * rng.random())
-        if d > 1:
-            lam[1:] = np.clip(lam[0] * np.exp(self.log_ratio * rng.uniform(-1.0, 1.0, d - 1)), self.lo, self.hi)
+        lam0 = math.exp(self.log_lo + (self.log_hi - self.log_lo) * rng.random())
+        if d == 2:      # the general branch in Python floats (the same values, fewer numpy calls)
+            u = rng.uniform(-1.0, 1.0, 1)[0]
+            lam = np.array([lam0, min(max(lam0 * math.exp(self.log_ratio * u), self.lo), self.hi)])
+        else:
+            lam = np.empty(d)
+            lam[0] = lam0
+            if d > 1:
+                lam[1:] = np.clip(lam0 * np.exp(self.log_ratio * rng.uniform(-1.0, 1.0, d - 1)), self.lo, self.hi)
         R = self._rotation(rng)
         P = (R * lam) @ R.T
         return x, 0.5 * (P + P.T)

@@ -2,11 +2,29 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .kernels import chol_lower, inv_lower
 
-__all__ = ["BeliefTree"]
+__all__ = ["BeliefTree", "LiveView"]
+
+
+class LiveView(NamedTuple):
+    """The live nodes, gathered once per change of the tree.
+
+    ``pe`` (3, n) holds the entries (P11, P12, P22) of their covariances
+    (2-D only, else None), contiguous per entry for the closed-form kernels.
+    ``extra`` is a scratch dict for quantities derived from them, which share
+    their lifetime (the planner keeps the prior's entries there).
+    """
+
+    idx: np.ndarray
+    x: np.ndarray
+    P: np.ndarray
+    pe: np.ndarray | None
+    extra: dict
 
 
 class BeliefTree:
@@ -21,6 +39,9 @@ class BeliefTree:
     ``cost`` (cost-to-come), ``edge_info`` (metric value of the edge from the
     parent), ``h`` (admissible cost-to-go bound for branch-and-bound),
     ``live`` (False once pruned) and ``goal`` (ellipse inside the target).
+    In 2-D, ``pe`` and ``le`` (3, capacity) repeat the entries (P11, P12, P22)
+    of P and (L^-1_11, L^-1_21, L^-1_22) of Linv, one contiguous row per
+    entry, which is what the closed-form kernels of :mod:`.kernels` read.
     """
 
     def __init__(self, dim: int, capacity: int = 256):
@@ -38,15 +59,18 @@ class BeliefTree:
         self.h = np.zeros(cap)
         self.live = np.zeros(cap, dtype=bool)
         self.goal = np.zeros(cap, dtype=bool)
+        self.pe = np.zeros((3, cap)) if d == 2 else None
+        self.le = np.zeros((3, cap)) if d == 2 else None
         self.children: list[list[int]] = []
-        self._live_cache = None   # (live indices, their x, their P), dropped on any change
+        self._live_cache: LiveView | None = None   # dropped on any change
 
-    def live_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(indices, x, P) of the live nodes; cached until the tree changes
+    def live_arrays(self) -> LiveView:
+        """The live nodes (:class:`LiveView`); cached until the tree changes
         (rejected samples leave it unchanged, so the gather is reused)."""
         if self._live_cache is None:
-            idx = np.flatnonzero(self.live[: self.n])
-            self._live_cache = (idx, self.x[idx], self.P[idx])
+            idx = self.live[: self.n].nonzero()[0]
+            self._live_cache = LiveView(idx, self.x[idx], self.P[idx],
+                                        None if self.pe is None else self.pe[:, idx], {})
         return self._live_cache
 
     def set_live(self, idx, value: bool) -> None:
@@ -62,11 +86,18 @@ class BeliefTree:
             new = np.empty((2 * arr.shape[0],) + arr.shape[1:], dtype=arr.dtype)
             new[: arr.shape[0]] = arr
             setattr(self, name, new)
+        if self.pe is not None:
+            cap = self.pe.shape[1]
+            for name in ("pe", "le"):
+                new = np.zeros((3, 2 * cap))
+                new[:, :cap] = getattr(self, name)
+                setattr(self, name, new)
 
     def add(self, x: np.ndarray, P: np.ndarray, parent: int, cost: float, edge_info: float, h: float,
-            goal: bool, L: np.ndarray | None = None) -> int:
+            goal: bool, L: np.ndarray | None = None, Linv: np.ndarray | None = None) -> int:
         """Append a node; returns its index. ``L`` is P's Cholesky factor (None: computed;
-        the root may have a singular P0, then identity placeholders are stored)."""
+        the root may have a singular P0, then identity placeholders are stored),
+        ``Linv`` its inverse (None: computed from L)."""
         if self.n == self.x.shape[0]:
             self._grow()
         i = self.n
@@ -78,7 +109,10 @@ class BeliefTree:
             except np.linalg.LinAlgError:
                 L = np.eye(self.dim)  # singular start covariance: never a rewiring target
         self.L[i] = L
-        self.Linv[i] = inv_lower(L)
+        self.Linv[i] = Li = inv_lower(L) if Linv is None else Linv
+        if self.pe is not None:
+            self.pe[:, i] = P[0, 0], P[0, 1], P[1, 1]
+            self.le[:, i] = Li[0, 0], Li[1, 0], Li[1, 1]
         self.parent[i] = parent
         self.cost[i] = cost
         self.edge_info[i] = edge_info

@@ -1,0 +1,283 @@
+"""One sampling attempt of IG-RRT* (steps 1-7 of :mod:`.rrt`), as a mixin of the planner.
+
+Sample, nearest, steer, shrink, parent, rewire, goal: see the module
+docstring of :mod:`.rrt` for what each step does. This file holds how, with
+the per-attempt numpy calls kept few, because an attempt is a few hundred
+microseconds of mostly call overhead: in 2-D the edge costs come from the
+closed-form kernels on the entries of the priors and factors
+(:meth:`.metrics.EdgeMetric.edges2`, cached per tree change in the tree's
+:class:`~.tree.LiveView`), and all the edges of an attempt go to the
+collision checker in one batch.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from .collision import CollisionChecker
+from .kernels import _any, chol_factors, eigh_single
+from .sampling import BeliefSampler
+from .tree import BeliefTree, LiveView
+
+__all__ = ["IterationMixin"]
+
+_REL_EPS = 1e-12           # relative tie tolerance for cost comparisons
+_UPPER = ([0, 0, 1], [0, 1, 1])   # (11, 12, 22) entries of a 2x2 matrix
+_LOWER = ([0, 1, 1], [0, 0, 1])   # (11, 21, 22)
+_EIG_FLOOR_FACTOR = 1e-3   # samples shrunk below 1e-3 * eig_range[0] are rejected
+
+
+class IterationMixin:
+    """Steps 1-7 of IG-RRT* for :class:`~.rrt.IGRRTStar` (which sets the
+    attributes used here: options, metric, W_edge, per_metre, dim, gamma,
+    _tA, _tb, _logdet_max, _stats, _timings)."""
+
+    # ---------------------------------------------------------------- helpers
+    def _h(self, x: np.ndarray, logdet_P: float) -> float:
+        dist = max(0.0, float((self._tA @ x - self._tb).max()))
+        if self.metric.metric != "entropy":
+            return dist
+        return dist + self.metric.weight * max(0.0, 0.5 * (logdet_P - self._logdet_max))
+
+    def _steer(self, xn: np.ndarray, Pn: np.ndarray, xs: np.ndarray, Ps: np.ndarray,
+               t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Move the sample (xs, Ps) to the fraction t of the way from the nearest node (xn, Pn).
+
+        ``"linear"`` (the authors): x and P interpolated linearly (t = 1 keeps
+        the sample). ``"geodesic"``: x interpolated; with P_hat the prior
+        predicted from the node to the new mean, and P_s = L U D U^T L^T
+        (P_hat = L L^T), P = L U min(D, 1)^t U^T L^T: the matrix-geometric
+        interpolation from P_hat toward the matrix minimum of (P_hat, P_s). It
+        is below P_hat, so the step from the nearest node is always lossless,
+        and its information is t times that of the full step; with t = r / D
+        the nearest node is always a parent candidate. (Eigenvalues are capped
+        at 1 - 1e-6 so that every step senses a little: an exactly sensing-free
+        direction would make S = P^-1 - P_hat^-1 a rounding-noise matrix.)
+        """
+        x = xn + t * (xs - xn)
+        if self.options.steering == "linear":
+            P = Pn + t * (Ps - Pn)
+            return x, 0.5 * (P + P.T)
+        w = float(np.linalg.norm(x - xn)) if self.per_metre else 1.0
+        P_hat = Pn + w * self.W_edge
+        try:
+            # (chol_factors reads the symmetric part: no need to form it)
+            L, Linv, _, _ = chol_factors(P_hat)
+        except np.linalg.LinAlgError:  # singular prior (P0 = 0 and no motion): keep the sample's P
+            return x, Ps
+        lam, U = eigh_single(Linv @ Ps @ Linv.T)
+        # elementwise in Python floats (the same values as numpy's, fewer calls)
+        lam = np.array([min(min(max(v, 1e-300), 1.0) ** t, 1.0 - 1e-6) for v in lam.tolist()])
+        LU = L @ U
+        P = (LU * lam) @ LU.T
+        return x, 0.5 * (P + P.T)
+
+    def _radius(self, n_live: int) -> float:
+        n = n_live + 1
+        o = self.options
+        cap = o.max_radius + o.radius_per_alpha * o.alpha
+        return min(cap, self.gamma * (math.log(n) / n) ** (1.0 / self.dim))
+
+    def _priors(self, live: LiveView, w: np.ndarray | None, rows=None) -> np.ndarray:
+        """(3, k) entries of the priors P_i + w_i W of the live nodes (``rows``
+        of them, default all): per step (w = None) cached with the live view,
+        per metre from the weights w (k,)."""
+        if w is None:
+            prior = live.extra.get("prior")
+            if prior is None:
+                prior = live.extra["prior"] = live.pe + self._W_entries
+            return prior if rows is None else prior[:, rows]
+        pe = live.pe if rows is None else live.pe[:, rows]
+        return pe + self._W_entries * w
+
+    # --------------------------------------------------------------- iterate
+    def _iterate(self, rng, sampler: BeliefSampler, checker: CollisionChecker, tree: BeliefTree,
+                 best: float) -> int | None:
+        """One sampling attempt; returns the new node's index or None."""
+        o = self.options
+        st, tm = self._stats, self._timings
+        metric = self.metric
+        W = self.W_edge
+        per_metre = self.per_metre
+        entries = self._entries
+        bnb = o.branch_and_bound and math.isfinite(best)
+        t0 = time.perf_counter()
+
+        live = tree.live_arrays()
+        live_idx, X = live.idx, live.x
+        r = self._radius(live_idx.size)
+        xs, Ps = sampler.draw(rng)
+
+        # nearest in the (matrix-minimum) edge cost, then steer
+        diff = xs - X
+        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        _, Ls_inv, _, _ = chol_factors(Ps)
+        if entries:
+            s = self._priors(live, dist if per_metre else None)
+            info = metric.nearest_info2(s[0], s[1], s[2], Ls_inv[0, 0], Ls_inv[1, 0], Ls_inv[1, 1])
+        else:
+            info = metric.nearest_info(live.P, dist if per_metre else np.ones_like(dist), Ps, Ls_inv)
+        D = dist + metric.weight * info
+        j = int(D.argmin())
+        Dj = D[j]
+        t = min(1.0, r / Dj) if Dj > 0 else 1.0
+        x, P = self._steer(X[j], live.P[j], xs, Ps, t)
+
+        # shrink until the ellipse is clear (exact distance -> number of halvings)
+        k = checker.shrink_exponent(x, P)
+        if k is None:
+            st["rejected_in_hazard"] += 1
+            tm["sample"] += time.perf_counter() - t0
+            return None
+        if k:
+            P = P * 0.5 ** k
+        try:
+            L, Linv, logdet, eig_min = chol_factors(P)
+        except np.linalg.LinAlgError:
+            eig_min = 0.0
+        if not eig_min >= _EIG_FLOOR_FACTOR * o.eig_range[0]:
+            st["rejected_too_small"] += 1
+            tm["sample"] += time.perf_counter() - t0
+            return None
+        t1 = time.perf_counter()
+        tm["sample"] += t1 - t0
+
+        # parent candidates: live nodes with a lossless edge of cost <= r (cost >= distance)
+        diff = x - X
+        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        near = (dist <= r).nonzero()[0]
+        if near.size == 0:
+            st["rejected_no_candidate"] += 1
+            tm["candidates"] += time.perf_counter() - t1
+            return None
+        dn = dist[near]
+        k = near.size
+        keep = live_idx[near] != 0              # rewiring: the root is never rewired
+        if entries:
+            # the edges to q from its neighbours and from q to them (for
+            # rewiring, used unless q is hopeless) in one kernel call: rows
+            # (s11, s12, s22) of the priors and (t11, t21, t22) of the factors
+            rnodes = live_idx[near[keep]]
+            S = np.empty((6, k + rnodes.size))
+            S[:3, :k] = self._priors(live, dn if per_metre else None, near)
+            S[3:, :k] = Linv[_LOWER][:, None]
+            pq = P[_UPPER][:, None]
+            S[:3, k:] = pq + self._W_entries * dn[keep] if per_metre else pq + self._W_entries
+            S[3:, k:] = tree.le[:, rnodes]
+            lossless_all, info_all = metric.edges2(*S)
+            lossless, info = lossless_all[:k], info_all[:k]
+        else:
+            lossless, info = metric.edges_to(live.P[near], dn if per_metre else np.ones(near.size), P, L, Linv)
+        Dn = metric.cost(dn, info)
+        ok = lossless & (Dn <= r)
+        cand = near[ok]                         # positions in live_idx
+        if cand.size == 0:
+            st["rejected_no_candidate"] += 1
+            tm["candidates"] += time.perf_counter() - t1
+            return None
+        c_D, c_info = Dn[ok], info[ok]
+        via = tree.cost[live_idx[cand]] + c_D
+        order = via.argsort(kind="stable")
+        c_lb = float(via[order[0]])
+        h_q = self._h(x, logdet)
+        hopeless = bnb and c_lb + h_q > best * (1 + _REL_EPS)
+        st["parent_candidates"] += cand.size
+
+        # rewiring candidates (superset, with the optimistic cost c_lb of q)
+        rw = None
+        if not hopeless:
+            rv = near[keep]
+            nodes = live_idx[rv]
+            dr = dn[keep]
+            if entries:
+                lossless_r, info_r = lossless_all[k:], info_all[k:]
+            else:
+                wr = dr if per_metre else np.ones(rv.size)
+                lossless_r, info_r = metric.edges_from(P, wr, tree.P[nodes], tree.L[nodes], tree.Linv[nodes])
+            Dr = metric.cost(dr, info_r)
+            new_lb = c_lb + Dr
+            okr = lossless_r & (Dr <= r) & (new_lb < tree.cost[nodes] * (1 - _REL_EPS))
+            if bnb:
+                okr &= new_lb + tree.h[nodes] <= best * (1 + _REL_EPS)
+            if _any(okr):
+                rw = rv[okr]
+                r_D, r_info, r_d = Dr[okr], info_r[okr], dr[okr]
+                st["rewire_candidates"] += rw.size
+        t2 = time.perf_counter()
+        tm["candidates"] += t2 - t1
+
+        # collision checks, one batch: every parent candidate in order (only the
+        # first clear one matters, so the checker stops deciding after it) and
+        # every rewiring edge
+        nc = order.size
+        nr = 0 if rw is None else rw.size
+        d = self.dim
+        x0 = np.empty((nc + nr, d))
+        P0 = np.empty((nc + nr, d, d))
+        x1 = np.empty((nc + nr, d))
+        pn = live_idx[cand[order]]
+        x0[:nc] = X[cand[order]]
+        P0[:nc] = tree.P[pn]
+        x1[:nc] = x
+        if nr:
+            x0[nc:] = x
+            P0[nc:] = P
+            x1[nc:] = X[rw]
+        if per_metre:
+            We = np.concatenate([dn[ok][order], r_d] if nr else [dn[ok][order]])[:, None, None] * W
+        else:
+            We = np.empty_like(P0)
+            We[:] = W
+        clear = checker.transitions_clear(x0, P0, x1, We, ordered=nc)
+        hit = clear[:nc].nonzero()[0]
+        parent_pos = int(order[hit[0]]) if hit.size else -1
+        t3 = time.perf_counter()
+        tm["collision"] += t3 - t2
+        if parent_pos < 0:
+            st["rejected_all_colliding"] += 1
+            return None
+
+        parent = int(live_idx[cand[parent_pos]])
+        cost_q = float(via[parent_pos])
+        goal = checker.in_target(x, P)
+        q = tree.add(x, P, parent, cost_q, float(c_info[parent_pos]), h_q, goal, L=L, Linv=Linv)
+        if bnb and cost_q + h_q > best * (1 + _REL_EPS):
+            # cannot lead to a better path: dead on arrival (counted, as the
+            # authors' node that their next branch-and-bound step removes)
+            tree.set_live(q, False)
+            st["hopeless_nodes"] += 1
+            st["pruned"] += 1
+            tm["rewire"] += time.perf_counter() - t3
+            return q
+
+        # rewire, cheapest new cost first; re-check against current costs since
+        # an earlier rewire in this loop may already have lowered a subtree
+        if nr:
+            good = clear[nc:].nonzero()[0]
+            if good.size:
+                nodes = live_idx[rw[good]]
+                new_cost = cost_q + r_D[good]
+                infos = r_info[good]
+                anc = tree.ancestors(q)
+                for i in new_cost.argsort(kind="stable").tolist():
+                    v = int(nodes[i])
+                    nc_v = float(new_cost[i])
+                    if v in anc or not tree.live[v] or not nc_v < tree.cost[v] * (1 - _REL_EPS):
+                        continue
+                    sub = tree.reparent(v, q, nc_v, float(infos[i]))
+                    st["rewires"] += 1
+                    if bnb:
+                        self._revive(tree, sub, best)
+        tm["rewire"] += time.perf_counter() - t3
+        return q
+
+    def _revive(self, tree: BeliefTree, sub: list[int], best: float) -> None:
+        """Nodes pruned earlier whose cost dropped with a rewired ancestor come back."""
+        idx = np.asarray(sub)
+        back = idx[~tree.live[idx] & (tree.cost[idx] + tree.h[idx] <= best * (1 + _REL_EPS))]
+        if back.size:
+            tree.set_live(back, True)
+            self._stats["revived"] += back.size
