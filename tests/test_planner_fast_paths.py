@@ -77,6 +77,29 @@ def test_screen_verdicts_agree_with_the_exact_minimum(name, near):
     assert clear.mean() > 0.3 and hit.any()            # and both do work
 
 
+@pytest.mark.parametrize("name", ["paper-multi", "tutorial"])
+def test_axis_parallel_segments_are_witnessed_only_when_they_collide(name):
+    """Segments parallel to a face (axis-aligned moves next to the walls and
+    box obstacles): a witness only where the exact minimum is below the
+    threshold (a parallel face the segment runs outside of is no hit)."""
+    sc = bn.load_scenario(name)
+    checker = CollisionChecker(sc, MARGIN)
+    rng = np.random.default_rng(5)
+    lo, hi = sc.domain.bounding_box()
+    n = 200
+    x0 = lo + (hi - lo) * rng.uniform(0.05, 0.95, size=(n, sc.dim))
+    step = np.zeros((n, sc.dim))
+    axis = rng.integers(0, sc.dim, n)
+    step[np.arange(n), axis] = rng.uniform(-0.1, 0.1, n)
+    x1 = np.clip(x0 + step, lo, hi)
+    P0 = np.repeat(1e-9 * np.eye(sc.dim)[None], n, 0)
+    W = np.repeat(np.asarray(sc.W, float)[None], n, 0)
+    hit, clear = checker.screen.certify(x0, x1, P0 + W)
+    lower, upper = _exact(sc, x0, P0, x1, W)
+    assert np.all(upper[hit] < checker.thr) and np.all(lower[clear] >= checker.thr)
+    assert clear.any()
+
+
 @pytest.mark.parametrize("name", ["paper-multi", "tutorial", "cube3d"])
 def test_checker_agrees_with_the_exact_check_on_grazing_edges(name):
     """The sub-interval layers and the exact fallback, where the screen leaves

@@ -93,10 +93,11 @@ class HazardScreen:
         # t (c0 - c1) >= c0, so it meets the hazard iff max over the faces
         # with c0 > c1 of c0 / (c0 - c1) is at most the min over the others
         # (and [0, 1] meets that range). A face parallel to the segment
-        # (c0 = c1) gives +-inf or NaN there, which can only withhold a hit.
+        # (c0 = c1) holds for no t when c0 > 0 (the segment runs outside it)
+        # and for every t otherwise.
         den = c0 - c1
         with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = c0 / den
+            ratio = np.where(den != 0, c0 / den, np.where(c0 > 0, -np.inf, np.inf))
         lower = _max(np.where(den > 0, ratio, -np.inf), axis=0)
         upper = _min(np.where(den > 0, np.inf, ratio), axis=0)
         hit = np.maximum(lower, 0.0) <= np.minimum(upper, 1.0)
