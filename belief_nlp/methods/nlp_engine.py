@@ -56,7 +56,8 @@ __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
 
 log = logging.getLogger("belief_nlp.smoother")
 
-_CACHE = MemoryCache(8)
+# 16: every NLP method's two stages at two alphas for one K (IPOPT, fatrop, Uno: 12)
+_CACHE = MemoryCache(16)
 
 
 class NLPBackend:
