@@ -21,7 +21,7 @@ def small_start():
 
 def test_listed_when_casadi_ships_it():
     assert "fatrop" in bn.available_methods()
-    assert bn.get_method("fatrop").max_iter == 3000
+    assert bn.get_method("fatrop").max_iter == 300
 
 
 def test_converges_verified_with_raw_stats(small_start):
