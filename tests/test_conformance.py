@@ -27,7 +27,7 @@ def test_the_registry_lists_the_builtins_and_the_toy_method():
     assert bn.get_method("ccp").max_iter == 50 and bn.get_method("ipopt").max_iter == 3000
 
 
-@pytest.mark.parametrize("name", ["ccp", "ipopt", "auto", "sqp", "sensing_trim"])
+@pytest.mark.parametrize("name", ["ccp", "ipopt", "auto", "sqp", "sensing_trim"] + (["fatrop"] if "fatrop" in bn.available_methods() else []))
 def test_conformance(name):
     check_method(name)
 

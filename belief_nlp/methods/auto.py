@@ -25,7 +25,13 @@ from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.registry import Method, Option, register
 from . import ccp, ipopt
 
-__all__ = ["run"]
+__all__ = ["run", "FIRST_STAGE"]
+
+#: the NLP method of the first stage: ``ipopt`` (or ``fatrop``: one line to
+#: switch). IPOPT stays: on the same NLP and warm starts fatrop stops at
+#: points 0.1-1 % costlier at IPOPT's tolerance and needs more iterations or
+#: fails at tighter ones (benchmarks/bench_nlp_speed.py, docs/numerics.md "fatrop").
+FIRST_STAGE = ipopt
 
 
 def _stage(problem: SmoothingProblem, budget: int, fn, solver: str, solver_options: dict, **kw: Any) -> Outcome:
@@ -57,7 +63,8 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int = 0
     run's ``solver_options`` go to IPOPT; CCP's come from ``ccp_solver_options``."""
     ccp_opts = (ccp_solver, ccp_solver_options or {})
     reserve = min(ccp_reserve, problem.max_iter // 2)
-    first = _stage(problem, problem.max_iter - reserve, ipopt.run, "IPOPT", problem.solver_options)
+    first = _stage(problem, problem.max_iter - reserve, FIRST_STAGE.run, FIRST_STAGE.METHOD.default_solver,
+                   problem.solver_options)
     stats: dict[str, Any] = {"ipopt": first.stats, "stages": ["ipopt"]}
     if first.status == "converged" and first.point is not None:
         chk = problem.check(first.point)
@@ -88,9 +95,10 @@ def _count(v: Any) -> str | None:
 
 
 METHOD = register(Method(
-    name="auto", run=run, max_iter=3000, default_solver="IPOPT",
-    check_solver=lambda s: None if s.upper() == "IPOPT" else f"method 'auto' runs IPOPT first (ccp_solver= picks "
-                                                               f"the CCP stage's solver), got {s!r}",
+    name="auto", run=run, max_iter=3000, default_solver=FIRST_STAGE.METHOD.default_solver,
+    check_solver=lambda s: None if s.upper() == FIRST_STAGE.METHOD.default_solver.upper()
+    else f"method 'auto' runs {FIRST_STAGE.METHOD.default_solver} first (ccp_solver= picks the CCP stage's solver), "
+         f"got {s!r}",
     description="IPOPT on the exact NLP; CCP from the best safe point when IPOPT's answer is not taken",
     iteration="one IPOPT iteration or one CCP step",
     options={"ccp_reserve": Option(50, "iterations of the budget kept for the CCP fallback", _count),

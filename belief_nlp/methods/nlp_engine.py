@@ -32,6 +32,7 @@ iterations, restoration iterations, CPU and wall seconds), ``iter_count``,
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time
@@ -55,7 +56,8 @@ __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
 
 log = logging.getLogger("belief_nlp.smoother")
 
-_CACHE = MemoryCache(8)
+# 16: every NLP method's two stages at two alphas for one K (IPOPT, fatrop, Uno: 12)
+_CACHE = MemoryCache(16)
 
 
 class NLPBackend:
@@ -72,6 +74,11 @@ class NLPBackend:
     #: names of the plug-in's own iteration limit and tolerance options
     limit_key = "max_iter"
     tol_key = "tol"
+    #: whether the plug-in calls CasADi's ``iteration_callback`` every
+    #: iteration. One that does not (fatrop) gets its stage budget as its own
+    #: limit, no restarts, one history record per solve, and the time limit
+    #: is checked between solves only
+    calls_back = True
 
     def options(self, solver_options: dict, tol: float, stage: str) -> dict:
         """The plug-in's options for ``stage``, the user's ``solver_options``
@@ -91,6 +98,20 @@ class NLPBackend:
     def nlpsol_options(self, opts: dict, log_path: str | None) -> dict:
         """The ``ca.nlpsol`` options dict around the plug-in's options."""
         return {self.plugin: opts}
+
+    def form(self, nlp: NLPProblem) -> Any:
+        """The NLP form this solver is given (default: ``nlp`` itself; a
+        structure-exploiting solver returns its stage-ordered form, which has
+        the same attributes)."""
+        return nlp
+
+    def structure_options(self, nlp: Any) -> dict:
+        """``ca.nlpsol`` options that describe ``nlp``'s structure (none by default)."""
+        return {}
+
+    def solving(self) -> contextlib.AbstractContextManager:
+        """Context of every solve (fatrop: its unconditional stdout line silenced)."""
+        return contextlib.nullcontext()
 
     def return_status(self, stats: dict) -> str:
         """The solver's own return status from ``solver.stats()``."""
@@ -133,13 +154,15 @@ def _solver(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulat
     entry = _CACHE.get(key) if cache else None
     if entry is not None:
         return (*entry, "memory")
-    nlp = build_nlp(problem.model, formulation, margin=margin, regularisation=regularisation, floor=floor)
+    nlp = backend.form(build_nlp(problem.model, formulation, margin=margin, regularisation=regularisation,
+                                 floor=floor))
     recorder = Recorder(nlp, problem.model.data.alpha, keep=candidates, bar=None, stall=0)
     recorder.log_path = backend.log_file()
     try:
         solver = ca.nlpsol(f"belief_nlp_{backend.plugin}", backend.plugin,
                            {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
-                           {**backend.nlpsol_options(opts, recorder.log_path), "print_time": False,
+                           {**backend.nlpsol_options(opts, recorder.log_path), **backend.structure_options(nlp),
+                            "print_time": False,
                             "iteration_callback": recorder, "error_on_fail": False, "show_eval_warnings": False})
     except RuntimeError as exc:  # bad option names or values
         raise ValidationError("solver_options",
@@ -220,6 +243,9 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
     from the best exactly safe point (module doc), at most ``max_iter``
     iterations. ``bounds(nlp, point)`` -> (z0, lbz, ubz) replaces the NLP's
     own start and bounds."""
+    if not backend.calls_back:
+        # fatrop's limit m allows m + 1 iterations by its own count (measured)
+        opts, restarts = {**opts, backend.limit_key: max(int(max_iter) - 1, 0)}, 0
     t_build = time.perf_counter()
     nlp, solver, recorder, stage.build = _solver(problem, backend, opts, formulation, margin, regularisation, floor,
                                                  max(int(candidates), 0), cache)
@@ -241,8 +267,11 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         t_solve, c_solve, log_at = time.perf_counter(), time.process_time(), _log_size(recorder.log_path)
         try:
             x0, lbx, ubx = bounds(nlp, z_start) if bounds else (nlp.pack(z_start), nlp.lbz, nlp.ubz)
-            sol = solver(x0=x0, p=pv, lbx=lbx, ubx=ubx, lbg=nlp.lbg, ubg=nlp.ubg)
+            with backend.solving():
+                sol = solver(x0=x0, p=pv, lbx=lbx, ubx=ubx, lbg=nlp.lbg, ubg=nlp.ubg)
             z_end = np.asarray(sol["x"]).ravel()
+            if not backend.calls_back:
+                recorder.solved(z_end, np.asarray(sol["g"]).ravel(), float(sol["f"]), solver.stats())
         except RuntimeError as exc:   # CasADi raises on some solver exceptions
             log.warning("%s raised: %s", backend.name, exc)
             z_end = None

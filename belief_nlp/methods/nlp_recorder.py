@@ -35,6 +35,7 @@ class Recorder(ca.Callback):
         self.stop_reason = ""
         self.stall = stall
         self.log_path: str | None = None       # the solver's log file, if its backend writes one
+        self.source_g = getattr(nlp, "source_g", None)
         self.best_cost = np.inf
         self.best_it = 0
         self.t_last = time.perf_counter()
@@ -92,16 +93,30 @@ class Recorder(ca.Callback):
     def eval(self, arg):
         it = self.calls
         self.calls += 1
+        if it == 0:                # IPOPT's iteration 0 is the start point itself
+            self.t_last = time.perf_counter()
+            return [0]
+        return [int(self._row(it + self.offset, arg[0].full().ravel(), arg[2].full().ravel(), float(arg[1])))]
+
+    def solved(self, zv: np.ndarray, gv: np.ndarray, cost: float, stats: dict) -> None:
+        """The end of a solve by a plug-in that never calls back (fatrop): its
+        last point becomes the attempt's one record, numbered by the solver's
+        own iteration count."""
+        n_it = int(stats.get("iter_count", 0))
+        self.calls = n_it + 1
+        self._row(self.offset + max(n_it, 1), zv, gv, cost)
+        if stats.get("success"):                # converged within the budget: no stop of ours
+            self.stop_reason = ""
+
+    def _row(self, it: int, zv: np.ndarray, gv: np.ndarray, cost: float) -> bool:
+        """Record iterate ``it`` (objective incl. the tiny proximal term:
+        ranks iterates); True asks the solver to stop."""
         now = time.perf_counter()
         dt, self.t_last = now - self.t_last, now
-        if it == 0:                # IPOPT's iteration 0 is the start point itself
-            return [0]
-        it += self.offset
-        zv = arg[0].full().ravel()
-        gv = arg[2].full().ravel()
-        cost = float(arg[1])                    # objective incl. the tiny proximal term: ranks iterates
         nlp = self.nlp
         viol = float(max(np.max(nlp.lbg - gv, initial=0.0), np.max(gv - nlp.ubg, initial=0.0)))
+        if self.source_g is not None:           # a stage-ordered form: the source NLP's rows, in its order
+            gv = self.source_g(gv)
         n_col, n_tgt = nlp.n_collision, nlp.info["n_target"]
         min_margin = float(min(np.min(gv[:n_col], initial=np.inf), np.min(gv[n_col:n_col + n_tgt], initial=np.inf)))
         kal = gv[n_col + n_tgt:n_col + n_tgt + nlp.info["n_kalman"]]
@@ -125,14 +140,14 @@ class Recorder(ca.Callback):
             self.bar.set_postfix(cost=f"{cost:.5g}", viol=f"{viol:.1e}")
         if self.budget is not None and self.calls - 1 >= self.budget:
             self.stop_reason = "max_iter"
-            return [1]
+            return True
         if self.deadline is not None and now > self.deadline:
             self.stop_reason = "time_limit"
-            return [1]
+            return True
         if self.stall and feasible and self.calls - 1 - self.best_it >= self.stall:
             # feasible, but no feasible iterate has lowered the cost for `stall`
             # iterations: IPOPT is creeping (seen as long runs of tiny steps and
             # watchdog trials next to an optimum); stop so a restart can finish
             self.stop_reason = "stalled"
-            return [1]
-        return [0]
+            return True
+        return False

@@ -1,0 +1,288 @@
+"""The NLP of :mod:`.nlp_form` in stage order, for structure-exploiting
+solvers (fatrop): generated from any :class:`~.nlp_form.NLPProblem` whose
+variables carry a step label, not written by hand.
+
+A structure-exploiting interior-point solver wants the NLP as an optimal
+control problem over stages i = 0..N: variables ``[s_0, u_0, s_1, u_1, ...,
+s_N, u_N]`` (states, then controls, of each stage), constraint rows
+``[gap_0, path_0, gap_1, path_1, ..., path_N]`` where gap_i closes the gap
+to the next stage, ``s_{i+1} - f_i(s_i, u_i) = 0`` (identity on s_{i+1}), and
+every other row, and every term of the cost, depends on one stage's (s_i,
+u_i) only (a block-diagonal Lagrangian Hessian).
+
+The smoothing NLP couples each step only to its neighbour: the Kalman
+equality ties Q_k to Y_{k-1}, a transition's start margin reads x_{k-1} and
+Y_{k-1}, the control term ||x_k - x_{k-1}||^2. Here stage i = k - 1 holds
+step k: its controls are all of step k's variables (belief, sensing factor,
+certificates, and whatever a later NLP adds with a step label), its state a
+copy of the step-(k-1) variables that step k's rows and cost terms read
+("carried" variables; none at k = 1, where step 0 is data), and the gap rows
+are the copies' equalities ``copy - original = 0``. Rows and cost terms that
+read steps k - 1 and k are rewritten on the copy. The cost is split into its
+additive terms (an expression-tree walk through sums, differences and
+constant factors) so that each term lands in one stage.
+
+Step labels: ``nlp.info["stages"]`` (one int in 1..K per variable) when the
+NLP supplies them, else the layout of :func:`.nlp_form.build_nlp` read from
+the symbols' names (x_k, L_k, M_k (k >= 2) and lam_k, column by column);
+variables outside that layout get
+the largest step of the rows and cost terms that read them (a per-pair
+variable of transition k lands in step k). Any row or term spanning more
+than two consecutive steps is refused (the "eliminated" formulation, whose
+Q_k depends on every earlier step).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+
+from ..errors import ValidationError
+from .data import Layout
+from .nlp_form import NLPProblem
+
+__all__ = ["OCPProblem", "build_ocp", "stage_labels", "additive_terms"]
+
+
+@dataclass
+class OCPProblem:
+    """An :class:`~.nlp_form.NLPProblem` in stage order (module doc); it has
+    the same attributes, so a solver driver uses either, plus the structure.
+
+    Attributes
+    ----------
+    source : the NLP it was made from.
+    src : (n,) index of the source variable behind each variable here (a
+        copy points at its original).
+    orig : (n_source,) position here of each source variable (not its copy).
+    source_rows : (m_source,) position here of each source row; gap rows are
+        the others.
+    N, nx, nu, ng : the stage structure (fatrop's manual structure options).
+    """
+
+    source: NLPProblem
+    z: ca.SX
+    p: ca.SX
+    f: ca.SX
+    g: ca.SX
+    lbz: np.ndarray
+    ubz: np.ndarray
+    lbg: np.ndarray
+    ubg: np.ndarray
+    parts: ca.Function
+    margins: ca.Function
+    src: np.ndarray
+    orig: np.ndarray
+    source_rows: np.ndarray
+    N: int
+    nx: list
+    nu: list
+    ng: list
+    info: dict = field(default_factory=dict)
+
+    @property
+    def formulation(self) -> str:
+        return self.source.formulation
+
+    @property
+    def n_collision(self) -> int:
+        return self.source.n_collision
+
+    @property
+    def anchor(self) -> Callable[[Layout], np.ndarray]:
+        return self.source.anchor
+
+    def pack(self, lay: Layout) -> np.ndarray:
+        """Layout -> variable values in stage order (copies equal their originals)."""
+        return self.source.pack(lay)[self.src]
+
+    def unpack(self, zv: np.ndarray) -> Layout:
+        """Variable values in stage order -> Layout (read from the originals)."""
+        return self.source.unpack(np.asarray(zv, float).ravel()[self.orig])
+
+    def to_source(self, zv: np.ndarray) -> np.ndarray:
+        """Variable values here -> the source NLP's variable values."""
+        return np.asarray(zv, float).ravel()[self.orig]
+
+    def source_g(self, gv: np.ndarray) -> np.ndarray:
+        """Constraint values here -> the source NLP's rows, in its order."""
+        return np.asarray(gv, float).ravel()[self.source_rows]
+
+    def without_sensing(self, lay: Layout, floor: float, slack: float = 0.1) -> tuple[np.ndarray, np.ndarray,
+                                                                                    np.ndarray]:
+        """:meth:`.NLPProblem.without_sensing` in stage order; a copy stays
+        free (its gap row ties it to the fixed original)."""
+        z0, lb, ub = self.source.without_sensing(lay, floor, slack)
+        return z0[self.src], self._bounds(lb, -np.inf), self._bounds(ub, np.inf)
+
+    def _bounds(self, b: np.ndarray, free: float) -> np.ndarray:
+        out = np.full(self.src.size, free)
+        out[self.orig] = b
+        return out
+
+
+#: build_nlp's variable blocks (symbol names) and the step of their first column
+_LAYOUT = {"x": 1, "s": 1, "m": 2, "lam": 1}
+
+
+def stage_labels(nlp: NLPProblem) -> np.ndarray:
+    """Step (1..K) of every variable of ``nlp``, -1 where the layout does not
+    say: ``info["stages"]`` when the NLP supplies it, else by symbol name
+    from build_nlp's layout (x_k, L_k, M_k for k >= 2, lam_k, each block
+    column by column, one column per step)."""
+    n = int(nlp.z.shape[0])
+    if "stages" in nlp.info:
+        lab = np.asarray(nlp.info["stages"], int).ravel()
+        if lab.size != n:
+            raise ValidationError("stages", f"needs one label per NLP variable ({n}), got {lab.size}")
+        return lab
+    K = int(nlp.info["K"])
+    base = np.array([nlp.z[i].name().rsplit("_", 1)[0] for i in range(n)])
+    lab = np.full(n, -1)
+    for name, first in _LAYOUT.items():
+        idx = np.flatnonzero(base == name)
+        steps = K - first + 1
+        if idx.size and steps > 0 and idx.size % steps == 0:
+            lab[idx] = first + np.arange(idx.size) // (idx.size // steps)
+    return lab
+
+
+def additive_terms(expr: ca.SX) -> list[ca.SX]:
+    """Scalar ``expr`` as a list of terms whose sum it is: the tree of sums,
+    differences, negations and products with a constant is opened; every
+    other node is one term (with its sign and constant factor)."""
+    out: list[ca.SX] = []
+    stack = [(expr, 1.0)]
+    while stack:
+        e, c = stack.pop()
+        if e.is_op(ca.OP_ADD):
+            stack += [(e.dep(0), c), (e.dep(1), c)]
+        elif e.is_op(ca.OP_SUB):
+            stack += [(e.dep(0), c), (e.dep(1), -c)]
+        elif e.is_op(ca.OP_NEG):
+            stack.append((e.dep(0), -c))
+        elif e.is_op(ca.OP_MUL) and e.dep(0).is_constant():
+            stack.append((e.dep(1), c * float(e.dep(0))))
+        elif e.is_op(ca.OP_MUL) and e.dep(1).is_constant():
+            stack.append((e.dep(0), c * float(e.dep(1))))
+        elif e.is_constant() and float(e) == 0.0:
+            continue
+        else:
+            out.append(c * e)
+    return out
+
+
+def _deps(exprs: ca.SX, z: ca.SX) -> list[np.ndarray]:
+    """For each entry of ``exprs``, the indices of the variables it reads."""
+    sp = ca.jacobian_sparsity(exprs, z).T        # column i: entry i's variables
+    colind, row = np.asarray(sp.colind()), np.asarray(sp.row())
+    return [row[colind[i]:colind[i + 1]] for i in range(exprs.shape[0])]
+
+
+def build_ocp(nlp: NLPProblem) -> OCPProblem:
+    """``nlp`` in stage order (module doc); the same optimum, variable for variable."""
+    z = nlp.z
+    n = int(z.shape[0])
+    K = int(nlp.info["K"])
+    lab = stage_labels(nlp)
+    terms = additive_terms(nlp.f)
+    T = ca.vertcat(*terms) if terms else ca.SX(0, 1)
+    row_deps = _deps(nlp.g, z)
+    term_deps = _deps(T, z)
+
+    def _stage(deps: np.ndarray, what: str) -> int:
+        known = lab[deps][lab[deps] > 0]
+        if known.size == 0:
+            return 0
+        hi, lo = int(known.max()), int(known.min())
+        if hi - lo > 1:
+            raise ValidationError("formulation", f"{nlp.formulation!r}: {what} reads steps {lo}..{hi}; "
+                                                 "a stage form needs neighbours only")
+        return hi
+
+    # unlabelled variables: the largest step of what reads them
+    if np.any(lab < 0):
+        lab = lab.copy()
+        lab_new = np.zeros(n, int)
+        for deps, what in [(d, "a row") for d in row_deps] + [(d, "a cost term") for d in term_deps]:
+            s = _stage(deps, what)
+            free = deps[lab[deps] < 0]
+            lab_new[free] = np.maximum(lab_new[free], s)
+        if np.any((lab < 0) & (lab_new < 1)):
+            raise ValidationError("stages", "some NLP variables have no step label and nothing places them")
+        lab = np.where(lab < 0, lab_new, lab)
+
+    row_stage = np.array([max(_stage(d, "a row"), 1) for d in row_deps], int)
+    term_stage = np.array([max(_stage(d, "a cost term"), 1) for d in term_deps], int)
+
+    # carried variables of step k - 1, read by stage k's rows or terms
+    carried: list[np.ndarray] = [np.zeros(0, int)] * (K + 2)
+    for k in range(2, K + 1):
+        used = [d for d, s in zip(row_deps, row_stage) if s == k] + [d for d, s in zip(term_deps, term_stage) if s == k]
+        allv = np.unique(np.concatenate(used)) if used else np.zeros(0, int)
+        carried[k] = allv[lab[allv] == k - 1]
+
+    zs = [z[i] for i in range(n)]
+    vars_o, src, lbz, ubz, gs, lbg, ubg, rows_src = [], [], [], [], [], [], [], []
+    nx, nu, ng = [], [], []
+    f_parts = []
+    copies: list[ca.SX] = [ca.SX(0, 1)] * (K + 2)
+    for k in range(1, K + 1):
+        c = carried[k]
+        copies[k] = ca.SX.sym(f"carry{k}", c.size) if c.size else ca.SX(0, 1)
+        own = np.flatnonzero(lab == k)
+        vars_o += [copies[k][j] for j in range(c.size)] + [zs[i] for i in own]
+        src += list(c) + list(own)
+        lbz += [-np.inf] * c.size + list(nlp.lbz[own])
+        ubz += [np.inf] * c.size + list(nlp.ubz[own])
+        nx.append(int(c.size))
+        nu.append(int(own.size))
+    for k in range(1, K + 1):
+        # gap rows to stage k + 1: copy - original = 0 (identity on the copy)
+        if k < K:
+            c = carried[k + 1]
+            for j, i in enumerate(c):
+                gs.append(copies[k + 1][j] - zs[i])
+                lbg.append(0.0)
+                ubg.append(0.0)
+                rows_src.append(-1)
+        rows = np.flatnonzero(row_stage == k)
+        tms = np.flatnonzero(term_stage == k)
+        old = ca.vertcat(*[zs[i] for i in carried[k]]) if carried[k].size else ca.SX(0, 1)
+        ex = [nlp.g[rows.tolist()] if rows.size else ca.SX(0, 1), T[tms.tolist()] if tms.size else ca.SX(0, 1)]
+        if carried[k].size:
+            ex = ca.substitute(ex, [old], [copies[k]])
+        gs += [ex[0][j] for j in range(rows.size)]
+        lbg += list(nlp.lbg[rows])
+        ubg += list(nlp.ubg[rows])
+        rows_src += list(rows)
+        if tms.size:
+            f_parts.append(ca.sum1(ex[1]))
+        ng.append(int(rows.size))
+    z_o = ca.vertcat(*vars_o)
+    g_o = ca.vertcat(*gs) if gs else ca.SX(0, 1)
+    f_o = sum(f_parts, ca.SX(0)) if f_parts else ca.SX(0)
+    src = np.asarray(src, int)
+    is_copy = np.zeros(src.size, bool)
+    pos = 0
+    for k in range(1, K + 1):
+        is_copy[pos:pos + nx[k - 1]] = True
+        pos += nx[k - 1] + nu[k - 1]
+    orig = np.empty(n, int)
+    orig[src[~is_copy]] = np.flatnonzero(~is_copy)
+    rows_src = np.asarray(rows_src, int)
+    source_rows = np.empty(int(nlp.g.shape[0]), int)
+    source_rows[rows_src[rows_src >= 0]] = np.flatnonzero(rows_src >= 0)
+
+    z_src = ca.vertcat(*[z_o[int(i)] for i in orig])           # the source variables, read from the originals
+    parts = ca.Function("ocp_parts", [z_o, nlp.p], nlp.parts(z_src, nlp.p), ["z", "p"],
+                        ["control", "information", "regulariser"])
+    margins = ca.Function("ocp_margins", [z_o], nlp.margins(z_src), ["z"], ["collision", "target"])
+    info = {**nlp.info, "n_variables": int(z_o.shape[0]), "n_constraints": int(g_o.shape[0]),
+            "n_carried": int(sum(nx)), "stages_of_source": lab}
+    return OCPProblem(nlp, z_o, nlp.p, f_o, g_o, np.asarray(lbz, float), np.asarray(ubz, float),
+                      np.asarray(lbg, float), np.asarray(ubg, float), parts, margins, src, orig, source_rows,
+                      K - 1, nx, nu, ng, info)

@@ -1,0 +1,178 @@
+"""NLP smoothing speed (issue 21): auto / ipopt / fatrop / sqp on the same warm starts.
+
+paper-multi (and, with ``--random``, one random-polygons map per seed), IG-RRT*
+plans with N = 500 nodes and per-step noise (``bn.plan(sc, n_nodes=500,
+seed=s, noise="per_step")``), alpha 0.1 and 1.0, K = 20 (seeds 0-9), 40
+(0-4) and 80 (0-2); every method smooths the same warm start in one process
+after a warm-up call per (K, method) (the NLP and solver are built then).
+SQP gets a time limit of 10x IPOPT's wall time on the same case (the
+issue's bound), so a run that would take longer shows as ``time_limit``.
+A fresh subprocess measures the first call's extra cost at K = 20.
+
+Per case and method: status, iterations (the solver's own count), wall and
+CPU seconds, per-iteration time, cost, verified. Tables per (method, K):
+medians, cost ratio to the best method per case, converged & verified.
+Writes benchmarks/results/nlp_speed.json (load average recorded next to
+every figure: the machine is shared).
+
+    python benchmarks/bench_nlp_speed.py [--seeds 10 5 3] [--methods auto ipopt fatrop sqp] [--random]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import belief_nlp as bn
+
+HERE = Path(__file__).resolve().parent / "results"
+KS = (20, 40, 80)
+
+_FIRST_CALL = r"""
+import json, sys, time
+import belief_nlp as bn
+sc = bn.load_scenario("paper-multi")
+ws = bn.warm_start(sc, bn.plan(sc, n_nodes=500, seed=0, noise="per_step").path, K=20)
+out = {}
+for i in range(3):
+    t, c = time.perf_counter(), time.process_time()
+    r = bn.smooth(sc, ws, method=sys.argv[1], alpha=1.0)
+    out[f"call{i}"] = {"wall": time.perf_counter() - t, "cpu": time.process_time() - c, "verified": bool(r.safe)}
+print(json.dumps(out))
+"""
+
+
+def _case(sc, seed: int, K: int):
+    plan = bn.plan(sc, n_nodes=500, seed=seed, noise="per_step")
+    if not plan.success:
+        return None
+    try:
+        return bn.warm_start(sc, plan.path, K=K)
+    except bn.errors.BeliefNLPError:
+        return None
+
+
+def _run(sc, ws, method: str, alpha: float, **kw) -> dict:
+    load = os.getloadavg()[0]
+    t, c = time.perf_counter(), time.process_time()
+    res = bn.smooth(sc, ws, method=method, alpha=alpha, **kw)
+    wall, cpu = time.perf_counter() - t, time.process_time() - c
+    its = int(res.stats.get("iter_count", res.nit) or 0)
+    return {"status": res.status, "answered_by": res.method, "iterations": its, "wall_s": wall, "cpu_s": cpu,
+            "per_iteration_ms": 1e3 * wall / its if its else None, "cost": float(res.cost),
+            "verified": bool(res.safe and bn.verify(sc, res.path).safe), "loadavg": load}
+
+
+def _table(rows: list[dict]) -> list[dict]:
+    """Per (method, K): medians and the cost ratio to the best verified answer of each case."""
+    best: dict = {}
+    for r in rows:
+        if r["verified"]:
+            key = (r["family"], r["seed"], r["K"], r["alpha"])
+            best[key] = min(best.get(key, np.inf), r["cost"])
+    out = []
+    for m in dict.fromkeys(r["method"] for r in rows):
+        for K in sorted({r["K"] for r in rows if r["method"] == m}):
+            g = [r for r in rows if r["method"] == m and r["K"] == K]
+            ratio = [r["cost"] / best[(r["family"], r["seed"], r["K"], r["alpha"])] if r["verified"] else np.inf
+                     for r in g]
+            pit = [r["per_iteration_ms"] for r in g if r["per_iteration_ms"]]
+            out.append({"method": m, "K": K, "cases": len(g),
+                        "converged_verified": sum(r["status"] == "converged" and r["verified"] for r in g),
+                        "verified": sum(r["verified"] for r in g),
+                        "median_iterations": float(np.median([r["iterations"] for r in g])),
+                        "median_wall_s": float(np.median([r["wall_s"] for r in g])),
+                        "max_wall_s": float(np.max([r["wall_s"] for r in g])),
+                        "median_cpu_s": float(np.median([r["cpu_s"] for r in g])),
+                        "median_per_iteration_ms": float(np.median(pit)) if pit else None,
+                        "median_cost_ratio": float(np.median(ratio)), "max_cost_ratio": float(np.max(ratio)),
+                        "median_loadavg": float(np.median([r["loadavg"] for r in g]))})
+    return out
+
+
+def _markdown(table: list[dict]) -> str:
+    lines = ["| method | K | cases | conv. & verified | median its | median wall s | max wall s | median CPU s | "
+             "ms / it | cost / best: median | max | load |", "|---" * 12 + "|"]
+    for t in table:
+        pit = "-" if t["median_per_iteration_ms"] is None else f"{t['median_per_iteration_ms']:.1f}"
+        lines.append(f"| {t['method']} | {t['K']} | {t['cases']} | {t['converged_verified']} | "
+                     f"{t['median_iterations']:.0f} | {t['median_wall_s']:.2f} | {t['max_wall_s']:.2f} | "
+                     f"{t['median_cpu_s']:.2f} | {pit} | {t['median_cost_ratio']:.5f} | {t['max_cost_ratio']:.4f} | "
+                     f"{t['median_loadavg']:.1f} |")
+    return "\n".join(lines)
+
+
+def first_call(method: str) -> dict:
+    """First three calls of a fresh process at K = 20 (plan and warm start excluded)."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).resolve().parents[1]),
+                                                        os.environ.get("PYTHONPATH", "")]))
+    load = os.getloadavg()[0]
+    out = subprocess.run([sys.executable, "-c", _FIRST_CALL, method], capture_output=True, text=True, env=env,
+                         timeout=600, check=True)
+    rec = json.loads(out.stdout.strip().splitlines()[-1])
+    rec["extra_wall_s"] = rec["call0"]["wall"] - min(rec["call1"]["wall"], rec["call2"]["wall"])
+    rec["extra_cpu_s"] = rec["call0"]["cpu"] - min(rec["call1"]["cpu"], rec["call2"]["cpu"])
+    rec["loadavg"] = load
+    return rec
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, nargs=3, default=[10, 5, 3], help="seeds at K = 20, 40, 80")
+    ap.add_argument("--methods", nargs="+", default=["auto", "ipopt", "fatrop", "sqp"])
+    ap.add_argument("--random", action="store_true", help="also one random-polygons map per seed")
+    ap.add_argument("--out", type=Path, default=HERE / "nlp_speed.json")
+    args = ap.parse_args()
+    methods = [m for m in args.methods if m in bn.available_methods()]
+    families = ["paper-multi"] + ([f"random-polygons:{s}" for s in range(1)] if args.random else [])
+    t0 = time.perf_counter()
+    rows: list[dict] = []
+    res = {"machine": {"cpus": os.cpu_count(), "loadavg_at_start": os.getloadavg()},
+           "settings": {"seeds": dict(zip(KS, args.seeds)), "methods": methods, "families": families,
+                        "nodes": 500, "noise": "per_step", "alpha": [0.1, 1.0],
+                        "sqp_time_limit": "10x IPOPT wall on the same case"},
+           "first_call": {m: first_call(m) for m in methods if m != "sqp"}}
+    print("first call:", json.dumps(res["first_call"]), flush=True)
+    for fam in families:
+        sc = bn.load_scenario(fam)
+        for K, n_seeds in zip(KS, args.seeds):
+            cases = [(s, _case(sc, s, K)) for s in range(n_seeds)]
+            cases = [(s, ws) for s, ws in cases if ws is not None]
+            if not cases:
+                continue
+            for m in methods:              # warm-up: build the NLPs and solvers of this K (both stages, both alphas)
+                for alpha in (0.1, 1.0):
+                    bn.smooth(sc, cases[0][1], method=m, alpha=alpha, time_limit=60.0)
+            for s, ws in cases:
+                for alpha in (0.1, 1.0):
+                    ipopt_wall = None
+                    for m in methods:
+                        kw = {}
+                        if m == "sqp" and ipopt_wall is not None:
+                            kw["time_limit"] = max(10 * ipopt_wall, 1.0)
+                        r = _run(sc, ws, m, alpha, **kw)
+                        if m == "ipopt":
+                            ipopt_wall = r["wall_s"]
+                        r.update(family=fam, seed=s, K=K, alpha=alpha, method=m)
+                        rows.append(r)
+                        print(json.dumps(r), flush=True)
+            res["cases"] = rows
+            res["table"] = _table(rows)
+            args.out.parent.mkdir(exist_ok=True)
+            args.out.write_text(json.dumps(res, indent=1, default=float))
+    res["wall_s"] = time.perf_counter() - t0
+    res["machine"]["loadavg_at_end"] = os.getloadavg()
+    res["table"] = _table(rows)
+    args.out.write_text(json.dumps(res, indent=1, default=float))
+    print(_markdown(res["table"]))
+
+
+if __name__ == "__main__":
+    main()
