@@ -80,6 +80,20 @@ def test_help_everywhere(cmd, capsys):
         assert "--out" in out or cmd == ("scenarios",)
 
 
+def test_top_level_help_lists_every_command_and_exit_code(capsys):
+    """The description's summary names every subcommand the parser has, and
+    the epilog every exit code main() can return."""
+    from belief_nlp.cli import build_parser
+
+    code, out, _ = run(["--help"], capsys)
+    sub = next(a for a in build_parser()._actions if a.__class__.__name__ == "_SubParsersAction")
+    summary = out.split("positional arguments")[0]
+    for name in sub.choices:
+        assert f"  {name} " in summary, name
+    for text in ("0 success", "2 bad input", "3 planning or solving failed", "1 internal"):
+        assert text in " ".join(out.split())
+
+
 # --------------------------------------------------------------- scenarios
 def test_scenarios_list_show_export_plot(tmp_path, capsys):
     code, out, _ = run(["scenarios"], capsys)

@@ -117,3 +117,18 @@ def test_an_infeasible_horizon_falls_back_to_one_step_per_edge_and_says_so(monke
     assert "one step per path edge" in res.message and res.safe
     with pytest.raises(bn.InfeasibleStartError):
         bn.smooth(sc, path, K=20, max_iter=3, k_fallback=False)
+
+
+def test_method_names_are_case_insensitive(small):
+    """`method="CCP"` is the registered "ccp" (solver names are case-insensitive too)."""
+    from belief_nlp.smoother.registry import get_method
+
+    assert get_method("CCP") is get_method("ccp") and get_method("Auto").name == "auto"
+    with pytest.raises(bn.ValidationError, match="method"):
+        get_method("no-such-method")
+
+
+def test_a_solver_that_is_not_installed_is_named_so(small):
+    sc, path = small
+    with pytest.raises(bn.ValidationError, match="not installed"):
+        bn.smooth(sc, path, method="ccp", solver="NO_SUCH_SOLVER_XYZ", max_iter=1)

@@ -8,13 +8,16 @@ Minimum-sensing path planning in Gaussian belief space:
   compare    smooth the same path with several methods and tabulate them
   methods    list the registered smoothing methods and their options
   demo       the paper's experiment on paper-multi: Figs. 2-4 and GIFs
+  study      run a solver-comparison study (process pool or Dask), report or export it
+  mpc        run a receding-horizon belief MPC (casadi.Opti, do-mpc or rockit)
 
 Every subcommand takes ``--help``. Scenarios are built-in names (see
 ``belief-nlp scenarios``) or TOML/JSON files (docs/scenario_schema.md).
 
 Exit codes: 0 success; 2 bad input (the reason on one line of stderr, no
 traceback: unknown options, bad values, missing or malformed files); 3
-planning or solving failed (the status on stderr; files written so far stay).
+planning or solving failed (the status on stderr; files written so far stay);
+1 an internal error (a bug: one line, ``-v`` for the traceback).
 
 Progress (tqdm bars and log lines) goes to stderr, results to stdout;
 ``--quiet`` silences both but for errors, ``-v`` shows the solvers' logs.
@@ -50,7 +53,7 @@ _COMMANDS = (scenarios, plan, smooth, compare, methods, demo, study, mpc)
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``belief-nlp`` (errors raise instead of exiting)."""
     p = _Parser(prog=PROG, description=__doc__.split("Every subcommand")[0].strip(),
-        epilog="Exit codes: 0 success, 2 bad input, 3 planning or solving failed.\n\n"
+        epilog="Exit codes: 0 success, 2 bad input, 3 planning or solving failed, 1 internal error.\n\n"
                "Start with:\n  belief-nlp demo --out demo_out\n  belief-nlp COMMAND --help")
     from .._version import __version__
 

@@ -152,7 +152,10 @@ def _smoother_args(p: argparse.ArgumentParser, max_iter: int | None = None, meth
                         "found is kept)")
     g = p.add_argument_group("smoother")
     if method:
-        g.add_argument("--method", choices=smoothing_methods(), default=DEFAULT_METHOD,
+        names = smoothing_methods()
+        by_lower = {m.lower(): m for m in names}
+        g.add_argument("--method", choices=names, default=DEFAULT_METHOD,
+                       type=lambda v: by_lower.get(v.lower(), v),           # case-insensitive, as solver names
                        help="a registered smoothing method (belief-nlp methods lists them); auto: IPOPT on "
                             "the exact NLP, then CCP from the best safe point when IPOPT's answer is not "
                             "taken; ccp: the convex-concave procedure (the paper's), every iterate feasible; "

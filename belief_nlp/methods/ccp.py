@@ -100,8 +100,12 @@ def usable_solvers() -> list[str]:
 
 
 def _check_solver(name: str) -> str | None:
+    import cvxpy as cp
+
     ok = usable_solvers()
     if name.upper() not in ok:
+        if name.upper() not in cp.installed_solvers():
+            return f"{name!r} is not installed; usable installed solvers for the CCP step: {ok}"
         return f"{name!r} cannot solve the CCP step (it needs PSD and exponential cones); usable installed solvers: {ok}"
     return None
 

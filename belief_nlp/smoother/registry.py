@@ -199,6 +199,8 @@ def get_method(name: str) -> Method:
     ValidationError
         (field ``"method"``) for an unknown name; the message lists the known ones.
     """
+    if isinstance(name, str) and name not in _REGISTRY:     # names are case-insensitive, as solver names are
+        name = {k.lower(): k for k in _REGISTRY}.get(name.lower(), name)
     if not isinstance(name, str) or name not in _REGISTRY:
         raise ValidationError("method", f"must be one of {available_methods()} or a callable, got {name!r}")
     return _REGISTRY[name]
