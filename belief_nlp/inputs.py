@@ -4,13 +4,15 @@ methods depend on the smoother's interface and never the other way round)."""
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
 from typing import Any
 
 from .errors import ValidationError
 from .path import BeliefPath
 from .scenario import Scenario, load_scenario
 
-__all__ = ["as_scenario", "as_path"]
+__all__ = ["as_scenario", "as_path", "load_path_file"]
 
 
 def as_scenario(scenario: Any) -> Scenario:
@@ -30,19 +32,66 @@ def as_scenario(scenario: Any) -> Scenario:
 
 def as_path(path: Any):
     """A :class:`BeliefPath` or :class:`~belief_nlp.smoother.WarmStart` from
-    either of them or from a result with a ``.path`` (PlanResult, SmoothResult).
+    either of them, from a result with a ``.path`` (PlanResult, SmoothResult),
+    or from a file holding one (str or path: a plan result, belief path or
+    smoothing result, JSON or NPZ -- what ``belief-nlp smooth --path`` reads).
 
     Raises
     ------
     ValidationError
-        ``path`` is none of these.
+        ``path`` is none of these (a bad file: field ``path``).
     """
     from .smoother.warmstart import WarmStart
 
     if isinstance(path, (BeliefPath, WarmStart)):
         return path
+    if isinstance(path, (str, os.PathLike)):
+        return load_path_file(path, "path")[0]
     inner = getattr(path, "path", None)       # PlanResult, SmoothResult
     if isinstance(inner, BeliefPath):
         return inner
     raise ValidationError("path", f"must be a BeliefPath, a WarmStart or a result with a .path, "
                                   f"got {type(path).__name__}")
+
+
+def load_path_file(file: str | os.PathLike, field: str = "path") -> tuple[BeliefPath, dict]:
+    """A BeliefPath from a plan result, a belief path or a smoothing result
+    file (JSON or NPZ), and a dict saying what the file held. Every fault
+    (missing, malformed, too deep, no path inside) raises our own error
+    naming ``field``."""
+    import numpy as np
+
+    from ._limits import load_json
+
+    file = Path(file)
+    if not file.is_file():
+        raise ValidationError(field, f"no such file: {file}")
+    if file.suffix == ".npz":
+        try:
+            with np.load(file, allow_pickle=False) as z:
+                names = set(z.files)
+        except (OSError, ValueError) as exc:
+            raise ValidationError(field, f"{file}: not an NPZ file: {exc}") from None
+        if "header" in names:
+            return _path_of_plan(_plan_result_cls().load(file), file, field)
+        return BeliefPath.load(file), {"source": str(file), "kind": "path"}
+    data = load_json(file, field)          # size, nesting and syntax limits: our own error, one line
+    if isinstance(data, dict) and str(data.get("format", "")).startswith("belief_nlp.PlanResult"):
+        return _path_of_plan(_plan_result_cls().from_dict(data), file, field)
+    if isinstance(data, dict) and "path" in data and "x" not in data:
+        if not isinstance(data["path"], dict):
+            raise ValidationError(field, f"{file}: the result holds no path")
+        return BeliefPath.from_dict(data["path"]), {"source": str(file), "kind": "smooth result"}
+    return BeliefPath.from_dict(data), {"source": str(file), "kind": "path"}
+
+
+def _plan_result_cls():
+    from .planner import PlanResult
+
+    return PlanResult
+
+
+def _path_of_plan(result, file: Path, field: str):
+    if result.path is None:
+        raise ValidationError(field, f"{file}: the plan result holds no path ({result.message})")
+    return result.path, {"source": str(file), "kind": "plan result", "scenario": result.scenario}

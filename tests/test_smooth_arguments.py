@@ -132,3 +132,23 @@ def test_a_solver_that_is_not_installed_is_named_so(small):
     sc, path = small
     with pytest.raises(bn.ValidationError, match="not installed"):
         bn.smooth(sc, path, method="ccp", solver="NO_SUCH_SOLVER_XYZ", max_iter=1)
+
+
+@pytest.mark.parametrize("suffix", [".json", ".npz"])
+def test_smooth_reads_the_path_files_the_cli_reads(small, tmp_path, suffix):
+    """A plan or path file given as str or pathlib.Path smooths like the
+    object itself (the same warm start, the same answer); a bad file names `path`."""
+    from pathlib import Path
+
+    sc, path = small
+    f = path.save(tmp_path / f"p{suffix}")
+    ref = bn.smooth(sc, path, method="ccp", max_iter=2)
+    for given in (str(f), Path(f)):
+        res = bn.smooth(sc, given, method="ccp", max_iter=2)
+        assert res.cost == pytest.approx(ref.cost, rel=1e-9) and res.safe
+    bad = tmp_path / "bad.json"
+    bad.write_text("[" * 100 + "]" * 100)
+    with pytest.raises(bn.ValidationError, match="path"):
+        bn.smooth(sc, str(bad), max_iter=1)
+    with pytest.raises(bn.ValidationError, match="no such file"):
+        bn.smooth(sc, str(tmp_path / "missing.npz"), max_iter=1)

@@ -10,7 +10,6 @@ import sys
 from pathlib import Path
 from typing import Callable
 
-from .._limits import load_json
 from ..errors import ValidationError
 from ..smoother.registry import DEFAULT_METHOD  # noqa: F401 - the CLI's --method default
 
@@ -107,43 +106,10 @@ def _fmt_alpha(a: float) -> str:
 
 def _load_input_path(file: Path):
     """A BeliefPath from a plan result, a belief path or a smoothing result file
-    (JSON or NPZ). Returns (path, info dict)."""
-    import numpy as np
+    (JSON or NPZ). Returns (path, info dict); bad files name ``--path``."""
+    from ..inputs import load_path_file
 
-    from ..path import BeliefPath
-
-    file = Path(file)
-    if not file.is_file():
-        raise ValidationError("--path", f"no such file: {file}")
-    if file.suffix == ".npz":
-        try:
-            with np.load(file, allow_pickle=False) as z:
-                names = set(z.files)
-        except (OSError, ValueError) as exc:
-            raise ValidationError("--path", f"{file}: not an NPZ file: {exc}") from None
-        if "header" in names:
-            return _path_of_plan(_plan_result_cls().load(file), file)
-        return BeliefPath.load(file), {"source": str(file), "kind": "path"}
-    data = load_json(file, "--path")          # size, nesting and syntax limits: our own error, one line
-    if isinstance(data, dict) and str(data.get("format", "")).startswith("belief_nlp.PlanResult"):
-        return _path_of_plan(_plan_result_cls().from_dict(data), file)
-    if isinstance(data, dict) and "path" in data and "x" not in data:
-        if not isinstance(data["path"], dict):
-            raise ValidationError("--path", f"{file}: the result holds no path")
-        return BeliefPath.from_dict(data["path"]), {"source": str(file), "kind": "smooth result"}
-    return BeliefPath.from_dict(data), {"source": str(file), "kind": "path"}
-
-
-def _plan_result_cls():
-    from ..planner import PlanResult
-
-    return PlanResult
-
-
-def _path_of_plan(result, file: Path):
-    if result.path is None:
-        raise ValidationError("--path", f"{file}: the plan result holds no path ({result.message})")
-    return result.path, {"source": str(file), "kind": "plan result", "scenario": result.scenario}
+    return load_path_file(file, "--path")
 
 
 def _save_path(run: _Run, path, stem: str) -> Path:

@@ -99,9 +99,11 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
     ----------
     scenario : Scenario or str
         The scenario, or a built-in name / scenario file.
-    path : BeliefPath, PlanResult, SmoothResult or WarmStart
-        Any feasible path (planner output, file, hand-made), a result (its
-        path is taken), or a :class:`WarmStart` used as it is.
+    path : BeliefPath, PlanResult, SmoothResult, WarmStart, str or path
+        Any feasible path (planner output, hand-made), a result (its path is
+        taken), a :class:`WarmStart` used as it is, or a file holding a plan,
+        a path or a smoothing result (JSON or NPZ, as ``belief-nlp smooth
+        --path`` reads).
     method : str, Method or callable, optional
         A name from :func:`available_methods` -- ``"auto"`` (the default,
         :data:`DEFAULT_METHOD`): IPOPT on the exact NLP, then CCP from the
