@@ -152,3 +152,19 @@ def test_smooth_reads_the_path_files_the_cli_reads(small, tmp_path, suffix):
         bn.smooth(sc, str(bad), max_iter=1)
     with pytest.raises(bn.ValidationError, match="no such file"):
         bn.smooth(sc, str(tmp_path / "missing.npz"), max_iter=1)
+
+
+@pytest.mark.parametrize("method", ["ccp", "ipopt"])
+def test_a_callback_may_stop_the_run_with_stop_iteration(small, method):
+    """scipy.optimize's habit: raising StopIteration in the callback stops the
+    run after that iteration, status 'stopped', the answer verified."""
+    sc, path = small
+    seen = []
+
+    def cb(rec):
+        seen.append(rec.iteration)
+        if len(seen) >= 2:
+            raise StopIteration
+
+    res = bn.smooth(sc, path, method=method, callback=cb, max_iter=40)
+    assert res.status == "stopped" and len(seen) == 2 and res.safe and res.cost <= res.initial_cost

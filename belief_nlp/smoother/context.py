@@ -118,7 +118,8 @@ class SmoothingProblem:
     keep_iterates : bool
         Keep the path of every accepted iterate.
     callback : callable or None
-        ``callback(record)`` after every iteration; returning True stops the run.
+        ``callback(record)`` after every iteration; returning True (or raising
+        StopIteration, as with scipy.optimize) stops the run.
     method : str
         The method's name (for records and messages).
     policy : SafetyPolicy, optional
@@ -249,8 +250,13 @@ class SmoothingProblem:
         self.history.append(rec)
         if point is not None and rec.accepted:
             self.points[rec.iteration] = point
-        if self.callback is not None and self.callback(rec):
-            self.stop_requested = True
+        if self.callback is not None and not self.stop_requested:     # asked once: not called again
+            try:
+                stop = self.callback(rec)
+            except StopIteration:           # scipy.optimize's way to stop from a callback
+                stop = True
+            if stop:
+                self.stop_requested = True
         return self.stop_requested or self.out_of_time()
 
     def progress_bar(self, desc: str) -> Any:

@@ -139,7 +139,8 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
         How the warm start sets covariances (see :func:`warm_start`).
     callback : callable, optional
         ``callback(record)`` after every iteration with its
-        :class:`IterationRecord`; returning True stops the run.
+        :class:`IterationRecord`; returning True (or raising StopIteration,
+        as with scipy.optimize) stops the run with status "stopped".
     verbose : bool, optional
         Log every iteration (and the method's decisions) to stderr.
     k_fallback : bool, optional
