@@ -21,7 +21,7 @@ from .smoother import register as register_method
 from . import methods  # noqa: F401 - importing registers the built-in methods
 from .methods.ccp import ccp_subproblem, ccp_subproblem_path
 from .planner import IGRRTStar, PlanResult, plan
-from .compare import compare, records_to_table
+from .comparison import compare, records_to_table
 from .study.records import load_records
 from .study.ompl_export import export_ompl_benchmark
 

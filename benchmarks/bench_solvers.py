@@ -7,7 +7,7 @@ scenario's horizon (K = 20, or the path's edge count if larger -- the CLI's
 convention; when that warm start is infeasible -- per-step noise W on each of
 20 steps -- at one step per edge, recorded as ``horizon``), and smooth it with
 CCP (up to 100 iterations, tol 1e-4) and with IPOPT (up to 3000 iterations,
-default formulation and settings) through :func:`belief_nlp.compare.compare`.
+default formulation and settings) through :func:`belief_nlp.compare`.
 Wall times include everything ``smooth`` does; IPOPT reuses its compiled NLP
 for the same K and alpha (its cache), so only the first such call pays the
 ~0.4 s setup (``setup_time`` in the records). Records cost, iterations, wall and solver
@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 import belief_nlp as bn
-from belief_nlp.compare import compact, compare, records_to_table
+from belief_nlp.comparison import compact, compare, records_to_table
 
 MAX_RADIUS = 1.5          # belief_nlp.cli.DEMO_MAX_RADIUS: per-step noise needs it at alpha = 1
 MAX_ITER = {"ccp": 100, "ipopt": 3000}

@@ -227,8 +227,8 @@ def test_smooth_with_ipopt(tmp_path, hand_path_file, capsys):
 
 
 # ----------------------------------------------------------------- compare
-@pytest.mark.skipif(importlib.util.find_spec("belief_nlp.compare") is None,
-                    reason="belief_nlp.compare is not in this tree yet")
+@pytest.mark.skipif(importlib.util.find_spec("belief_nlp.comparison") is None,
+                    reason="belief_nlp.comparison is not in this tree yet")
 def test_compare_writes_records_table_and_figures(tmp_path, hand_path_file, capsys):
     code, out, err = run(["compare", "paper-multi", "--path", hand_path_file, "--methods", "ccp", "ipopt",
                           "--max-iter", 400, "--format", "npz", "--out", tmp_path], capsys)

@@ -1,4 +1,4 @@
-"""belief_nlp.compare: one record per method from one warm start."""
+"""belief_nlp.comparison (bn.compare): one record per method from one warm start."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import belief_nlp as bn
-from belief_nlp.compare import RECORD_KEYS, compact, compare, records_to_table
+from belief_nlp.comparison import RECORD_KEYS, compact, compare, records_to_table
 
 from conftest import paper_multi_path_pair
 
@@ -87,3 +87,14 @@ def test_table_and_compact_records(records):
     seeded = [dict(small[0], seed=0), dict(small[0], seed=1)]
     assert "seed" in records_to_table(seeded).splitlines()[0]
     assert records_to_table([]) == "(no records)"
+
+
+def test_compare_is_the_function_and_comparison_the_module():
+    """`bn.compare` is a function; its module has a name of its own, so
+    importing the module never yields the function (or the other way round)."""
+    import importlib
+    import types
+
+    mod = importlib.import_module("belief_nlp.comparison")
+    assert isinstance(mod, types.ModuleType) and callable(bn.compare) and bn.compare is mod.compare
+    assert not isinstance(bn.compare, types.ModuleType)

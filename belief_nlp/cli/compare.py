@@ -35,7 +35,7 @@ def add_parser(sub) -> None:
 
 def _cmd_compare(run: _Run) -> int:
     try:
-        from ..compare import compare, records_to_table
+        from ..comparison import compare, records_to_table
     except ImportError as exc:  # being built
         raise BeliefNLPError(f"the comparison module is not available in this installation ({exc})") from None
     a = run.args

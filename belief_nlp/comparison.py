@@ -100,7 +100,7 @@ def compare(scenario: Scenario | str, path: BeliefPath | WarmStart, methods: Ite
     -------
     list of dict
         One record per method, in ``methods`` order (keys: ``RECORD_KEYS``,
-        described in the module docstring of :mod:`belief_nlp.compare`); a
+        described in the module docstring of :mod:`belief_nlp.comparison`); a
         method that raised a BeliefNLPError gives a record with ``status="error"``
         and its message.
 
