@@ -223,3 +223,29 @@ def test_cube3d_plots(tmp_path):
     _assert_real_image(bp.save_figure(fig, tmp_path / "cube.png", dpi=60))
     with pytest.raises(ValueError):
         bp.plot_scenario(sc3, ax=plt.subplots()[1])
+
+
+@pytest.mark.parametrize("name, box", [("paper-multi", None), ("wide", ((0.0, 0.0), (2.0, 1.0))),
+                                       ("tutorial", None)])
+def test_legend_is_inside_a_plain_savefig_and_clear_of_the_axis_label(sc, tmp_path, name, box):
+    """plot_belief_path(legend=True) then a plain fig.savefig: the legend lies
+    inside the saved figure and does not overlap the x-axis label or the axes,
+    on square and on wide maps."""
+    if box is None:
+        scen = bn.load_scenario(name)
+    else:
+        scen = bn.scenario_from_dict({"name": name, "domain": {"box": {"lower": list(box[0]), "upper": list(box[1])}},
+                                      "target": {"box": {"lower": [1.8, 0.8], "upper": [1.95, 0.95]}},
+                                      "start": {"x": [0.1, 0.1], "P": [[1e-9, 0], [0, 1e-9]]},
+                                      "noise": {"W": [[2e-4, 0], [0, 2e-4]]}, "obstacles": []})
+    x = np.linspace(scen.x0, scen.x0 + 0.05, 4)
+    path = bn.BeliefPath.from_sensing(x, scen.P0, np.zeros((3, 2, 2)), W=scen.W)
+    fig, ax = bp.plot_belief_path(scen, path, title=True, legend=True)
+    ax.set_xlabel("x (m)")
+    fig.savefig(tmp_path / "a.png")                    # plain: no bbox_inches
+    r = fig.canvas.get_renderer()
+    leg = ax.get_legend().get_window_extent(r)
+    fb = fig.bbox
+    assert fb.x0 - 1 <= leg.x0 and leg.x1 <= fb.x1 + 1 and fb.y0 - 1 <= leg.y0 and leg.y1 <= fb.y1 + 1
+    assert not leg.overlaps(ax.xaxis.label.get_window_extent(r))
+    assert not leg.overlaps(ax.get_window_extent(r))

@@ -32,6 +32,7 @@ def plot_belief_path(scenario, path, ax=None, *, prior_color="tab:blue", posteri
     ``show_scenario=False`` draws only the path (e.g. on top of
     :func:`plot_tree`). Returns ``(fig, ax)``.
     """
+    own_figure = ax is None
     if show_scenario:
         fig, ax = plot_scenario(scenario, ax=ax)
     else:
@@ -66,7 +67,12 @@ def plot_belief_path(scenario, path, ax=None, *, prior_color="tab:blue", posteri
             handles += [Line2D([], [], color="black", marker="o", linestyle="none", label="start"),
                         Patch(facecolor=to_rgba("tab:green", 0.35), edgecolor="tab:green", label="target"),
                         Patch(facecolor="0.5", edgecolor="0.3", label="obstacle")]
-        # below the map, outside it, so it never covers the path (nor a neighbouring panel)
-        ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, fontsize=8,
-                  frameon=False)
+        # below the map and its x-axis label, a fixed distance in points (so it clears them on maps of
+        # any aspect), never over the path nor a neighbouring panel; the figure's layout makes room for
+        # it (a figure of ours: constrained layout; on the caller's axes their layout decides,
+        # and tight_layout / constrained layout count the legend too), so a plain savefig keeps it
+        ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=3, fontsize=8,
+                  frameon=False, borderaxespad=4.0)
+        if own_figure and fig.get_layout_engine() is None:
+            fig.set_layout_engine("constrained")
     return fig, ax
