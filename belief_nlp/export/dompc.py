@@ -78,13 +78,19 @@ def dompc_controller(kit: BeliefMPC, model, horizon: int, tvp_fun, ipopt: dict |
     mpc.set_param(n_horizon=int(horizon), t_step=1.0, n_robust=0, store_full_solution=False,
                   nlpsol_opts={**opts, "print_time": False, "expand": True})
     mpc.set_objective(lterm=model.aux["cost"], mterm=ca.SX(0))
+    mpc.set_rterm(v=0.0)            # no input-rate penalty: the stage cost already prices each move
     mpc.set_nl_cons("belief_safety", -model.aux["rows"], ub=-kit.lbg.reshape(-1, 1))
     lb = np.full(kit.nx, -np.inf)
     lb[[kit.d + n for n, (i, j) in enumerate(kit.tri) if i == j]] = 0.0
     mpc.bounds["lower", "_x", "s"] = lb
     template = mpc.get_tvp_template()
     mpc.set_tvp_fun(lambda t_now: tvp_fun(template, t_now))
-    mpc.setup()
+    with warnings.catch_warnings():
+        # do-mpc's setup applies numpy functions to CasADi values (CasADi 3.8 warns, issue #2959);
+        # harmless here and not ours to change
+        warnings.filterwarnings("ignore", message=r"\s*casadi: a numpy function was called on a casadi value",
+                                category=FutureWarning)
+        mpc.setup()
     return mpc
 
 
