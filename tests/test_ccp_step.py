@@ -199,3 +199,17 @@ def test_compiled_step_reports_where_it_came_from(small):
     _, origin, _ = compiled_step(model)
     _, origin2, _ = compiled_step(BeliefModel(sc, 10, 0.1))
     assert (origin, origin2) == ("compiled", "memory")
+
+
+def test_subproblem_after_a_ccp_run_of_the_same_model(small):
+    """The compiled problem a CCP run solved (and cached) is the one a
+    subproblem is copied from: the copy solves on its own and the run's
+    problem keeps working (found: a deepcopy renamed the leaves the compiled
+    chain is keyed by)."""
+    sc, path = small
+    bn.smooth(sc, path, method="ccp", alpha=0.1, max_iter=1)
+    prob = bn.ccp_subproblem(sc, path, alpha=0.1)
+    prob.solve(solver="CLARABEL")
+    assert prob.status in ("optimal", "optimal_inaccurate")
+    again = bn.smooth(sc, path, method="ccp", alpha=0.1, max_iter=2)
+    assert again.nit == 2 and again.safe

@@ -452,7 +452,7 @@ def ccp_subproblem(scenario, path, K: int | None = None, alpha: float | None = N
     ValidationError
         For bad arguments, naming the argument.
     """
-    import copy
+    import pickle
 
     from ..smoother.warmstart import WarmStart, warm_start
 
@@ -462,7 +462,9 @@ def ccp_subproblem(scenario, path, K: int | None = None, alpha: float | None = N
     model = BeliefModel(sc, warm.K, alpha)
     start = model.tighten(model.from_path(warm.path, warm.lam))
     shared, _, _ = compiled_step(model)
-    step = copy.deepcopy(shared)       # its own variables and parameters; the compiled form comes along
+    # its own variables and parameters, with the compiled form (the disk cache's round trip: a pickle
+    # keeps the leaves' ids, which the compiled chain is keyed by; copy.deepcopy gives new ids)
+    step = pickle.loads(pickle.dumps(shared))
     for var in step.problem.variables():       # no answer from an earlier solve of the shared problem
         var.value = None
     rho = initial_rho(model, start)
