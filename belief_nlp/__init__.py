@@ -19,7 +19,7 @@ from .smoother import (DEFAULT_METHOD, STATUSES, IterationRecord, Method, Option
                        SmoothingProblem, WarmStart, available_methods, get_method, smooth, warm_start)
 from .smoother import register as register_method
 from . import methods  # noqa: F401 - importing registers the built-in methods
-from .methods.ccp import ccp_subproblem, ccp_subproblem_path
+from .methods.ccp_subproblem import ccp_subproblem, ccp_subproblem_path
 from .planner import IGRRTStar, PlanResult, plan
 from .comparison import compare, records_to_table
 from .study.records import load_records
