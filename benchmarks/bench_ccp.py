@@ -70,7 +70,7 @@ def run_case(case: dict) -> dict:
         ws = bn.warm_start(sc, planned.path, K=case["K"])
     except bn.BeliefNLPError as exc:
         return dict(out, error=f"warm start: {exc}")
-    a, K = case["alpha"], case["K"]
+    a = case["alpha"]
     for method in ("ccp", "ipopt"):            # builds (CVXPY compile, NLP) are cached: time none of them
         bn.smooth(sc, ws, method=method, alpha=a, max_iter=1)
     runs = {}

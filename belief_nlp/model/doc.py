@@ -316,7 +316,6 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
     # collision constraints: h1 exactly, h2 with the bilinear term convexified;
     # one pair function mapped over every (transition, hazard) end
     pair = _pair_function(d, F, chi2)
-    Q1 = ca.DM(D.Q1)
     for name, ks, end in (("end", np.arange(1, K + 1), True), ("start", np.arange(2, K + 1), False)):
         if ks.size == 0:
             continue
