@@ -12,8 +12,11 @@ step against *all* hazards (obstacles, then the domain walls, the order of
   face ``0^T y <= 1`` (the whole space: the polytope is unchanged and a
   certificate on it only lowers the margin, so padding can never certify).
 * ``p``: the obstacle data as a parameter vector (vec A row-major (J F d),
-  b (J F), chi2), so obstacles, walls and the confidence level can change at
-  run time without exporting or compiling again (:meth:`SafetyBundle.params`).
+  b (J F), one confidence level per hazard (J)), so obstacles, walls and the
+  levels can change at run time without exporting or compiling again
+  (:meth:`SafetyBundle.params`); a stage of an MPC can take the smoother's
+  risk allocation for its transition (``params(levels=result.risk.levels[k])``,
+  :meth:`SafetyBundle.stage_params`).
 * rows: per hazard j the start and end margins (``<name>_start``,
   ``<name>_end``; dimensionless, >= ``margin``), then every certificate
   (``<name>_lam_<f>`` >= 0). The certificate bounds are rows of ``g``, so
@@ -104,10 +107,10 @@ def _stage_function(d: int, J: int, F: int, soft: tuple | None, name: str) -> ca
     x0, P0 = ca.SX.sym("x_prev", d), ca.SX.sym("P_prev", d, d)
     x1, W = ca.SX.sym("x_next", d), ca.SX.sym("W", d, d)
     lam = ca.SX.sym("lam", J * F)
-    p = ca.SX.sym("p", J * F * d + J * F + 1)
-    chi2 = p[-1]
+    p = ca.SX.sym("p", J * F * d + J * F + J)
     margins = []
     for j in range(J):
+        chi2 = p[J * F * d + J * F + j]
         A = _pick_rows(p, j * F * d, F, d)
         b = p[J * F * d + j * F: J * F * d + (j + 1) * F]
         lj = lam[j * F:(j + 1) * F]
@@ -203,13 +206,30 @@ class SafetyBundle(_Bundle):
         """Lower bounds of the certificates: zeros, shape (J F,) (certificates are >= 0)."""
         return np.zeros(self.n_lam)
 
-    def params(self, scenario: Scenario | str | None = None) -> np.ndarray:
+    def params(self, scenario: Scenario | str | None = None, levels: float | np.ndarray | None = None) -> np.ndarray:
         """The parameter vector p (bundle units) for ``scenario`` (default: the
         one the bundle was built for). A scenario with moved obstacles gives new
-        values for the same function; it must have J hazards of at most F faces."""
-        if scenario is None:
-            return self._p.copy()
-        sc = _scenario(scenario)
+        values for the same function; it must have J hazards of at most F faces.
+        ``levels``: the confidence level (squared radius) of each hazard, one
+        number or (J,) (default: the scenario's chi2 for all)."""
+        p = self._p.copy() if scenario is None else self._scenario_params(_scenario(scenario))
+        if levels is not None:
+            lv = np.asarray(levels, float)
+            if lv.ndim > 1 or lv.size not in (1, self.J) or not np.all(np.isfinite(lv)) or np.any(lv <= 0):
+                raise ValidationError("levels", f"must be one number or {self.J} finite numbers > 0")
+            p[-self.J:] = lv
+        return p
+
+    def stage_params(self, levels: np.ndarray, scenario: Scenario | str | None = None) -> np.ndarray:
+        """(n_p, K) parameter columns, stage k at ``levels[k]`` -- e.g. the
+        smoother's allocation ``result.risk.levels`` (K, J) -- for an MPC whose
+        stages each take their own p (:class:`~belief_nlp.export.OptiMPC` ``p``)."""
+        lv = np.asarray(levels, float)
+        if lv.ndim != 2 or lv.shape[1] != self.J:
+            raise ValidationError("levels", f"must be (K, {self.J}) levels, got shape {lv.shape}")
+        return np.column_stack([self.params(scenario, row) for row in lv])
+
+    def _scenario_params(self, sc: Scenario) -> np.ndarray:
         hz = sc.hazards
         if len(hz) != self.J or max(h.n_faces for h in hz) > self.F or sc.dim != self.d:
             raise ValidationError("scenario", f"needs {self.J} hazards of at most {self.F} faces in {self.d}-D, "
@@ -219,7 +239,7 @@ class SafetyBundle(_Bundle):
         for j, h in enumerate(hz):
             A[j, :h.n_faces] = h.A
             b[j, :h.n_faces] = h.b
-        return np.concatenate([A.ravel(), b.ravel() * self._length(), [float(sc.chi2)]])
+        return np.concatenate([A.ravel(), b.ravel() * self._length(), np.full(self.J, float(sc.chi2))])
 
     def __call__(self, x_prev, P_prev, x_next, W, lam, p=None, slack=None):
         """g (or (g, penalty) for a soft bundle) on numbers or symbols; p defaults to :meth:`params`."""
@@ -285,7 +305,7 @@ def _make_stage(base: SafetyBundle, units: str, soft: tuple | None) -> SafetyBun
     names = [f"{h}_{e}" for h in base.hazard_names for e in ("start", "end")]
     names += [f"{h}_lam_{f}" for h in base.hazard_names for f in range(F)]
     lb = [base.margin] * (2 * J) + [0.0] * (J * F)
-    nominal = [max(1.0, float(base._p[-1]))] * (2 * J) + [s / base.sigma] * (J * F)
+    nominal = [max(1.0, float(lv)) for lv in base._p[-J:] for _ in range(2)] + [s / base.sigma] * (J * F)
     if soft is not None:
         names += [f"{h}_{e}_slack" for h in base.hazard_names for e in ("start", "end")]
         lb += [0.0] * (2 * J)
@@ -335,8 +355,7 @@ def stage_bundle(scenario: Scenario | str, scaled: bool = False, margin: float |
     seed = SafetyBundle(function=None, names=(), lbg=np.zeros(0), ubg=np.zeros(0), nominal=np.zeros(0),
                         units="SI", sigma=_sigma(sc), d=d, J=J, F=F,
                         hazard_names=tuple(_slug(h.name) for h in hz), margin=margin)
-    object.__setattr__(seed, "_p", np.ones(1))
-    object.__setattr__(seed, "_p", seed.params(sc))
+    object.__setattr__(seed, "_p", seed._scenario_params(sc))
     out = _make_stage(seed, "scaled" if scaled else "SI", None)
     return out if soft is None else out.soft(*soft)
 

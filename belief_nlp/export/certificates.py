@@ -23,7 +23,7 @@ __all__ = ["certificate_warm_start"]
 
 
 def certificate_warm_start(scenario: Scenario | str, path: BeliefPath, bundle: SafetyBundle | None = None,
-                           check: bool = True, hazards=None) -> np.ndarray:
+                           check: bool = True, hazards=None, levels: np.ndarray | None = None) -> np.ndarray:
     """Certificates (K, J F) for every transition of ``path``, in ``bundle``'s units.
 
     Row k is the ``lam`` input of ``bundle`` for the transition k -> k+1
@@ -36,12 +36,15 @@ def certificate_warm_start(scenario: Scenario | str, path: BeliefPath, bundle: S
     :func:`belief_nlp.warm_start` (it adds sensing). ``hazards``: the
     scenario's :class:`~belief_nlp.geometry.PolytopeSet`, if already built
     (a closed loop calls this every step; building it costs ~30 ms).
+    ``levels`` (K, J): each transition's level per hazard (a risk
+    allocation; default the scenario's chi2), for the certificates and the check.
     """
     from ..smoother.warmstart import certificates
 
     sc = _scenario(scenario)
     bundle = stage_bundle(sc) if bundle is None else bundle
-    lam_si = certificates(sc, path, hazards)                  # (K, J, F_model), SI
+    lv = None if levels is None else np.asarray(levels, float)
+    lam_si = certificates(sc, path, hazards, chi2=lv)          # (K, J, F_model), SI
     K, J, F = lam_si.shape
     out = np.zeros((K, bundle.J, bundle.F))
     out[:, :J, :F] = lam_si
@@ -51,6 +54,8 @@ def certificate_warm_start(scenario: Scenario | str, path: BeliefPath, bundle: S
         Wk = path.transition_noise
         for k in range(K):
             res = bundle(path.x[k] * f["x"], path.P[k] * f["P"], path.x[k + 1] * f["x"], Wk[k] * f["W"], out[k],
+                         # rows >= margin at level lv - margin: the certificate proves lv itself
+                         p=None if lv is None else bundle.params(levels=lv[k] - bundle.margin),
                          slack=np.zeros(bundle.n_slack) if bundle.n_slack else None)
             g = np.asarray(res[0] if bundle.n_slack else res).ravel()
             bad = np.flatnonzero(g < bundle.lbg - 1e-12 * (1 + np.abs(bundle.lbg)))

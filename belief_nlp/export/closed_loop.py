@@ -62,11 +62,14 @@ def make_solver(tool: str, kit: BeliefMPC, horizon: int):
     return TOOLS[tool](kit, horizon)
 
 
-def _step_safe(kit: BeliefMPC, hazards, x, P, x1, P1, final: bool) -> bool:
+def _step_safe(kit: BeliefMPC, hazards, x, P, x1, P1, final: bool, levels=None) -> bool:
+    """The transition clears every hazard at its level (``levels`` (J,), default
+    the scenario's chi2) and, at the last step, the final ellipse is in the target."""
     from ..geometry import containment_margin, transition_clearances
 
     sc = kit.scenario
-    ok = float(np.min(transition_clearances(x[None], P[None], x1[None], sc.W, hazards, sc.chi2))) >= 0
+    lv = sc.chi2 if levels is None else levels
+    ok = float(np.min(transition_clearances(x[None], P[None], x1[None], sc.W, hazards, lv))) >= 0
     if ok and final:
         ok = float(np.min(containment_margin(x1, P1, sc.target.A, sc.target.b, sc.chi2))) >= 0
     return ok
@@ -75,7 +78,7 @@ def _step_safe(kit: BeliefMPC, hazards, x, P, x1, P1, final: bool) -> bool:
 def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10, steps: int | None = None,
                 reference: BeliefPath | None = None, alpha: float | None = None, track: float = 10.0,
                 seed: int = 0, progress: Callable[[int, float], None] | None = None,
-                prox: float = PROX) -> BeliefPath:
+                prox: float = PROX, levels: np.ndarray | None = None) -> BeliefPath:
     """Run the belief MPC of ``tool`` for ``steps`` steps (default: the
     scenario's horizon K, else 20) with prediction ``horizon``.
 
@@ -97,9 +100,19 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
     ref = reference_path(sc, steps, seed=seed) if reference is None else reference
     if ref.K != steps:
         raise ValidationError("reference", f"must have {steps} transitions, got {ref.K}")
+    lv = None
+    if levels is not None:
+        lv = np.asarray(levels, float)
+        if tool != "opti":
+            raise ValidationError("levels", f"per-stage levels are wired for tool 'opti' only, not {tool!r}")
+        if lv.shape != (steps, len(sc.hazards)) or not np.all(np.isfinite(lv)) or np.any(lv <= 0):
+            raise ValidationError("levels", f"must be ({steps}, {len(sc.hazards)}) finite levels > 0, "
+                                            f"got shape {lv.shape}")
+        # stage rows >= margin at level lv - margin: each certificate proves lv itself
+        p_all = kit.stage.stage_params(np.vstack([lv, np.repeat(lv[-1:], horizon, axis=0)]) - kit.stage.margin)
     mpc = make_solver(tool, kit, horizon)
     hazards = kit.hazards                              # built once; hold() uses it too
-    U = kit.guess(ref, extra=horizon)                 # (nu, steps + horizon)
+    U = kit.guess(ref, extra=horizon, levels=lv)      # (nu, steps + horizon)
     x, P = sc.x0.copy(), sc.P0.copy()
     xs, Ss, times, iters = [x], [], [], []
     tail: list[np.ndarray] = []
@@ -108,7 +121,8 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
         guess = U[:, t:t + horizon]
         t0 = time.perf_counter()
         try:
-            plan = mpc.solve(kit.state(x, P), t, steps, kit.references(ref, guess, t, horizon), guess)
+            extra = {} if lv is None else {"p": p_all[:, t:t + horizon]}
+            plan = mpc.solve(kit.state(x, P), t, steps, kit.references(ref, guess, t, horizon), guess, **extra)
         except SolverError:
             plan = None
         times.append(time.perf_counter() - t0)
@@ -116,7 +130,7 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
         step = None
         if plan is not None:
             x1, P1, S = kit.apply(x, P, plan[:, 0])
-            if _step_safe(kit, hazards, x, P, x1, P1, t == steps - 1):
+            if _step_safe(kit, hazards, x, P, x1, P1, t == steps - 1, None if lv is None else lv[t]):
                 step, tail = (x1, P1, S), [plan[:, k] for k in range(1, horizon)]
                 U[:, t:t + horizon] = plan
                 if t + horizon < U.shape[1] and t + horizon < steps:   # a feasible stage for the shifted guess
@@ -125,7 +139,7 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
             hold = kit.hold(kit.state(x, P), tail[0] if tail else U[:, t])
             for v in tail[:1] + [hold]:
                 x1, P1, S = kit.apply(x, P, v)
-                if _step_safe(kit, hazards, x, P, x1, P1, t == steps - 1):
+                if _step_safe(kit, hazards, x, P, x1, P1, t == steps - 1, None if lv is None else lv[t]):
                     step, fallbacks, U[:, t] = (x1, P1, S), fallbacks + 1, v
                     break
             tail = tail[1:]

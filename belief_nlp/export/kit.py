@@ -252,12 +252,12 @@ class BeliefMPC:
             self._hazards = PolytopeSet.build(self.scenario.hazards)
         return self._hazards
 
-    def guess(self, reference: BeliefPath, extra: int = 0) -> np.ndarray:
+    def guess(self, reference: BeliefPath, extra: int = 0, levels: np.ndarray | None = None) -> np.ndarray:
         """Inputs (nu, K + extra) that reproduce ``reference`` (a safe path) with
-        certificates from :func:`.certificate_warm_start`, so that the first
-        solve starts feasible; ``extra`` stages past the end (switched off by
-        :meth:`gates`) stay put with a tiny sensing factor."""
-        lam = certificate_warm_start(self.scenario, reference, self.stage, hazards=self.hazards)
+        certificates from :func:`.certificate_warm_start` (at ``levels`` (K, J)
+        when given), so that the first solve starts feasible; ``extra`` stages
+        past the end (switched off by :meth:`gates`) stay put with a tiny sensing factor."""
+        lam = certificate_warm_start(self.scenario, reference, self.stage, hazards=self.hazards, levels=levels)
         U = [self.input(reference.x[k], reference.x[k + 1], reference.S[k + 1], lam[k]) for k in range(reference.K)]
         rest = self.input(reference.x[-1], reference.x[-1], np.zeros((self.d, self.d)), np.zeros(self.stage.n_lam))
         return np.stack(U + [rest] * extra, 1)

@@ -63,8 +63,10 @@ class OptiMPC:
     in and an IPOPT iteration costs ~2-3x more; docs/mpc.md, "Speed").
     Parameters ``s0``, ``gate`` (2, N), ``ref`` (d + J F, N) (scaled
     reference of the next means and certificates,
-    :meth:`BeliefMPC.references`), ``p``/``p_t`` (obstacle and target data:
-    change them with ``opti.set_value`` to move obstacles at run time).
+    :meth:`BeliefMPC.references`), ``p`` (n_p, N) (obstacle data and each
+    hazard's confidence level, one column per stage: a risk allocation's
+    levels, :meth:`SafetyBundle.stage_params`) and ``p_t`` (target data);
+    change them with ``opti.set_value`` (or ``solve(..., p=...)``) at run time.
     Every stage gets ``kit.rows >= kit.lbg`` -- the certificate rows
     included. Pass your own ``opti`` to add constraints or cost terms
     (``extra_cost``) before :meth:`solve`.
@@ -91,7 +93,7 @@ class OptiMPC:
         N = self.N
         self.V = o.variable(kit.nu, N)
         self.s0, self.gate, self.ref = o.parameter(kit.nx), o.parameter(2, N), o.parameter(kit.n_ref, N)
-        self.p = o.parameter(kit.stage.function.size1_in("p"))
+        self.p = o.parameter(kit.stage.function.size1_in("p"), N)       # one column per stage
         self.p_t = o.parameter(kit.terminal.function.size1_in("p"))
         rows, cost = kit.rows.map(N), kit.cost.map(N)
         if shooting == "multiple" and N > 1:
@@ -102,12 +104,12 @@ class OptiMPC:
         else:
             self._Xv = None
             self.X = ca.horzcat(self.s0, kit.step.mapaccum(N)(self.s0, self.V))
-        g = rows(self.X[:, :N], self.V, self.gate, ca.repmat(self.p, 1, N), ca.repmat(self.p_t, 1, N))
+        g = rows(self.X[:, :N], self.V, self.gate, self.p, ca.repmat(self.p_t, 1, N))
         o.subject_to(ca.vec(g) >= np.tile(kit.lbg, N))
         if self._Xv is not None:           # the dynamics, after all rows (multipliers shift block by block)
             o.subject_to(ca.vec(kit.step.map(N - 1)(self.X[:, :N - 1], self.V[:, :N - 1]) - self._Xv) == 0)
         o.minimize(ca.sum2(cost(self.X[:, :N], self.V, self.gate, self.ref)) + extra_cost)
-        o.set_value(self.p, kit.stage.params())
+        o.set_value(self.p, np.tile(kit.stage.params()[:, None], (1, N)))
         o.set_value(self.p_t, kit.terminal.params())
         self._ipopt = dict(ipopt or {})
         self.warm, self.warm_duals = bool(warm), bool(warm_duals)
@@ -131,12 +133,16 @@ class OptiMPC:
         self.opti.set_initial(self.opti.lam_g, np.concatenate(
             [np.hstack([L[:, 1:], L[:, -1:]]).ravel(order="F") for L in blocks]))
 
-    def solve(self, state: np.ndarray, t: int, steps: int, ref: np.ndarray, guess: np.ndarray) -> np.ndarray:
+    def solve(self, state: np.ndarray, t: int, steps: int, ref: np.ndarray, guess: np.ndarray,
+              p: np.ndarray | None = None) -> np.ndarray:
         """Solve from ``state`` at time t of a run of ``steps``; ``ref`` (d + J F, N)
         from :meth:`BeliefMPC.references`, ``guess`` (nu, N) inputs (their
-        rollout from ``state`` is the states' initial value). Returns
+        rollout from ``state`` is the states' initial value), ``p`` (n_p, N)
+        the stages' obstacle data and levels (None: as before). Returns
         the planned inputs (nu, N); raises SolverError if IPOPT fails."""
         o, kit = self.opti, self.kit
+        if p is not None:
+            o.set_value(self.p, p)
         o.set_value(self.s0, state)
         o.set_value(self.gate, kit.gates(t, self.N, steps))
         o.set_value(self.ref, ref)
