@@ -209,6 +209,8 @@ def test_result_round_trip_keeps_the_budget(plans, tmp_path, suffix):
     assert back == res and back.risk == res.risk
     assert PlanResult.from_dict(json.loads(json.dumps(res.to_dict()))).risk == res.risk
     assert "risk budget 0.05" in back.summary()
-    with pytest.raises(ValidationError) as info:
-        PlanResult.from_dict({**res.to_dict(), "risk": [1, 2]})
-    assert info.value.field == "risk"
+    for bad, field in (([1, 2], "risk"), ({**res.risk, "budget": "x"}, "risk.budget"),
+                       ({**res.risk, "bound": math.nan}, "risk.bound"), ({**res.risk, "rounds": 3}, "risk.rounds")):
+        with pytest.raises(ValidationError) as info:
+            PlanResult.from_dict({**res.to_dict(), "risk": bad})
+        assert info.value.field == field

@@ -104,6 +104,19 @@ def _unnum(v: Any) -> float:
     return float(v)
 
 
+def _check_risk(risk: Any) -> None:
+    """A ``PlanResult.risk`` record (as :mod:`~belief_nlp.planner.budget` writes it), or ValidationError."""
+    if not isinstance(risk, dict):
+        raise ValidationError("risk", f"must be a dict or None, got {type(risk).__name__}")
+    for key in ("budget", "collision_chi2", "target_chi2", "bound"):
+        v = risk.get(key)
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)) and \
+                not (key == "bound" and v is None):
+            raise ValidationError(f"risk.{key}", f"must be a finite number, got {v!r:.40}")
+    if not isinstance(risk.get("rounds"), list):
+        raise ValidationError("risk.rounds", "must be a list of planning rounds")
+
+
 @dataclass(eq=False)
 class PlanResult:
     """Outcome of :func:`belief_nlp.plan` (IG-RRT*).
@@ -223,8 +236,8 @@ class PlanResult:
         except (TypeError, ValueError) as exc:
             raise ValidationError("cost_trace", f"must be a list of [seconds, cost] pairs: {str(exc)[:200]}") from exc
         self.cost_trace = trace
-        if self.risk is not None and not isinstance(self.risk, dict):
-            raise ValidationError("risk", f"must be a dict or None, got {type(self.risk).__name__}")
+        if self.risk is not None:
+            _check_risk(self.risk)
 
     def __eq__(self, other: object) -> bool:
         """Field by field, NaN equal to NaN (a failed run's travel is NaN), so
