@@ -113,6 +113,23 @@ def test_confidence_default_and_chi2_override():
     assert info.value.field == "chi2"
 
 
+def test_risk_is_an_alternative_for_the_collision_level():
+    """``risk``: an end-to-end budget; confidence / chi2 stay (the target's level)."""
+    sc = bn.load_scenario("paper-multi")
+    assert sc.risk is None and "risk" not in sc.to_dict()
+    budget = sc.with_options(risk=0.05)
+    assert budget.risk == 0.05 and budget.confidence == 0.9 and budget.chi2 == sc.chi2
+    assert budget.to_dict()["risk"] == 0.05 and "risk=0.05" in repr(budget)
+    assert budget != sc and budget.with_options(risk=None) == sc
+    assert isinstance(sc.with_options(risk=np.float32(0.25)).risk, float)
+    d = sc.to_dict()
+    d.pop("confidence")
+    d["risk"] = 0.05
+    assert scenario_from_dict(d).confidence == 0.9                 # the target's level keeps its default
+    d["chi2"] = 9.21
+    assert scenario_from_dict(d).chi2 == 9.21 and scenario_from_dict(d).risk == 0.05
+
+
 # ---------------------------------------------------------------- validation
 # One entry per class of bad input: (label, mutation of a valid dict, field, words in message, type)
 SE, VE = ScenarioFileError, ValidationError
@@ -229,6 +246,13 @@ BAD_CASES = [
     ("alpha a string", lambda d: d.__setitem__("alpha", "0.1"), "alpha", ("number", "str"), SE),
     ("alpha a bool", lambda d: d.__setitem__("alpha", True), "alpha", ("number", "bool"), SE),
     ("confidence a string", lambda d: d.__setitem__("confidence", "90%"), "confidence", ("number",), SE),
+    ("risk a string", lambda d: d.__setitem__("risk", "5%"), "risk", ("number", "str"), SE),
+    ("risk a bool", lambda d: d.__setitem__("risk", True), "risk", ("number", "bool"), SE),
+    ("risk zero", lambda d: d.__setitem__("risk", 0), "risk", ("(0, 0.5)",), VE),
+    ("risk 0.5", lambda d: d.__setitem__("risk", 0.5), "risk", ("(0, 0.5)",), VE),
+    ("risk negative", lambda d: d.__setitem__("risk", -0.01), "risk", ("(0, 0.5)",), VE),
+    ("risk spent by the start", lambda d: (d.__setitem__("risk", 0.01), d["start"].__setitem__("P", 2e-3)),
+     "risk", ("start belief", "obstacle 1"), VE),
     ("K a float", lambda d: d["horizon"].__setitem__("K", 2.5), "horizon.K", ("integer",), SE),
     ("K a string", lambda d: d["horizon"].__setitem__("K", "20"), "horizon.K", ("integer",), SE),
     ("K a bool", lambda d: d["horizon"].__setitem__("K", True), "horizon.K", ("integer",), SE),
@@ -308,8 +332,8 @@ def _assert_bit_exact(a: Scenario, b: Scenario):
         assert np.array_equal(pa.A, pb.A) and np.array_equal(pa.b, pb.b)
         assert np.array_equal(pa.vertices, pb.vertices)
     assert len(a.obstacles) == len(b.obstacles)
-    assert (a.alpha, a.confidence, a.chi2, a.K, a.planner, a.name, a.description) == \
-        (b.alpha, b.confidence, b.chi2, b.K, b.planner, b.name, b.description)
+    assert (a.alpha, a.confidence, a.chi2, a.K, a.planner, a.name, a.description, a.risk) == \
+        (b.alpha, b.confidence, b.chi2, b.K, b.planner, b.name, b.description, b.risk)
 
 
 def _constructed_scenarios():
@@ -333,7 +357,7 @@ def _constructed_scenarios():
                    Polytope.from_halfspaces(np.vstack([np.eye(3), -np.eye(3)]) * 2.0,
                                             2.0 * np.array([0.3, 0.9, 0.9, -0.2, -0.7, -0.1]))),
         x0=np.array([0.1, 0.1, 0.1]), P0=np.zeros((3, 3)), W=1e-4 * np.eye(3), W_rate=1e-3 * np.eye(3),
-        confidence=0.95)
+        confidence=0.95, risk=1 / 30)
 
 
 @pytest.mark.parametrize("suffix", [".toml", ".json"])

@@ -91,12 +91,16 @@ class _Run:
 
 
 # ------------------------------------------------------- loading and saving
-def _load_scenario(spec: str, alpha: float | None):
+def _load_scenario(spec: str, alpha: float | None, risk: float | None = None):
+    """The scenario with --alpha and --risk applied (a budget the start
+    belief already spends is refused here, naming ``risk``)."""
     from ..scenario import load_scenario
 
     sc = load_scenario(spec)
     if alpha is not None:
         sc = sc.with_options(alpha=alpha)
+    if risk is not None:
+        sc = sc.with_options(risk=risk)
     return sc
 
 

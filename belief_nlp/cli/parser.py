@@ -90,6 +90,22 @@ def _positive_float(text: str) -> float:
     return _number(text, positive=True)
 
 
+def _risk_budget(text: str) -> float:
+    """An end-to-end collision budget, checked by RiskBudget (0 < Delta < 0.5)."""
+    from ..allocation import RiskBudget
+    from ..errors import ValidationError
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    try:
+        return RiskBudget(value).budget
+    except ValidationError:
+        raise argparse.ArgumentTypeError(f"must be a number strictly between 0 and 0.5 (an end-to-end collision "
+                                         f"probability), got {text!r}") from None
+
+
 def _nonneg_float(text: str) -> float:
     return _number(text, positive=False)
 
@@ -173,6 +189,24 @@ def _smoother_args(p: argparse.ArgumentParser, max_iter: int | None = None, meth
                    help="iteration limit of the smoother" + (f" ({max_iter_help})" if max_iter_help else ""))
     g.add_argument("--tol", type=_positive_float, default=1e-4,
                    help="stop when an iteration lowers the cost by less than this fraction")
+
+
+def _risk_args(p: argparse.ArgumentParser, allocation: bool = False) -> None:
+    """``--risk`` (and, for the smoother, ``--allocation``): an end-to-end
+    collision-probability budget instead of one fixed level for collisions."""
+    from ..allocation import ALLOCATIONS
+
+    g = p.add_argument_group("risk budget")
+    g.add_argument("--risk", type=_risk_budget, default=None, metavar="DELTA",
+                   help="end-to-end collision-probability budget in (0, 0.5): the certified bound on a "
+                        "collision at the step times stays within DELTA (the planner raises its collision "
+                        "level until its path's bound fits); the scenario's confidence is then the target's "
+                        "level only. Default: the scenario file's risk, if any")
+    if allocation:
+        g.add_argument("--allocation", choices=ALLOCATIONS, default=None,
+                       help="how the smoother spends the budget over the transition-hazard pairs: optimal "
+                            "(per-pair levels as decision variables, the default) or uniform (DELTA split "
+                            "equally); needs a budget")
 
 
 def _plan_unless_path_args(p: argparse.ArgumentParser) -> None:

@@ -10,7 +10,7 @@ import time
 
 from .common import EXIT_OK, _fail, _load_scenario, _one_line, _Run, _wrap, log
 from .figures import _no_path_panel, _panels, _save_fig
-from .parser import _output_args, _planner_args, _positive_float, _scenario_arg
+from .parser import _output_args, _planner_args, _positive_float, _risk_args, _scenario_arg
 
 
 def add_parser(sub) -> None:
@@ -21,18 +21,20 @@ def add_parser(sub) -> None:
                     "belief_nlp.planner.PlanResult.load reads back, with the path, the tree and the "
                     "best cost per node; OUT/plan.png (tree, path and confidence ellipses) and "
                     "OUT/plan_cost.png (best cost against nodes). Exit code 3 when no path is found.",
-        epilog="Example:\n  belief-nlp plan paper-multi --nodes 500 --alpha 0.1 --seed 0 --out out")
+        epilog="Examples:\n  belief-nlp plan paper-multi --nodes 500 --alpha 0.1 --seed 0 --out out\n"
+               "  belief-nlp plan paper-multi --risk 0.05 --out out_risk")
     _scenario_arg(pp)
     _planner_args(pp)
     pp.add_argument("--time-limit", type=_positive_float, default=None, metavar="SECONDS",
                     help="stop growing the tree after this wall time")
+    _risk_args(pp)
     _output_args(pp)
     pp.set_defaults(func=_cmd_plan)
 
 
 def _cmd_plan(run: _Run) -> int:
     a = run.args
-    sc = _load_scenario(a.scenario, a.alpha)
+    sc = _load_scenario(a.scenario, a.alpha, a.risk)
     run.prepare_out()
     res = _plan(run, sc)
     run.list_written()
@@ -41,7 +43,16 @@ def _cmd_plan(run: _Run) -> int:
     run.say(f"plan: planner cost {res.cost:.6g} (length {res.travel:.4g} m + {res.alpha:g} x information "
             f"{res.information:.4g} {res.info_unit}), {res.path.K} steps, first solution at node "
             f"{res.first_solution_iteration}")
+    if res.risk is not None:
+        run.say(f"plan: {_risk_line(res.risk)}")
     return EXIT_OK
+
+
+def _risk_line(risk: dict) -> str:
+    """The budget and what the plan certifies, for the report."""
+    return (f"risk budget {risk['budget']:g}: certified collision bound {risk['bound']:.3g} at the step times "
+            f"(collisions planned at chi2 = {risk['collision_chi2']:.4g}, target at {risk['target_chi2']:.4g}; "
+            f"{len(risk['rounds'])} planning round(s))")
 
 
 def _plan(run: _Run, sc, *, label: str = "", stem: str = "plan", figures: bool = True):
@@ -91,5 +102,6 @@ def _plan_figures(run: _Run, sc, res, stem: str) -> None:
 
 
 def _plan_failed(res) -> int:
-    return _fail(f"planning failed: {_one_line(res.message)} (try more --nodes, another --seed or a larger "
-                 f"--max-radius)")
+    hint = " or a larger --risk" if res.risk is not None else ""
+    return _fail(f"planning failed: {_one_line(res.message)} (try more --nodes, another --seed, a larger "
+                 f"--max-radius{hint})")

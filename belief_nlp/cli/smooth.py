@@ -9,7 +9,7 @@ from ..errors import BeliefNLPError, ValidationError
 from .common import (EXIT_OK, FAILED_STATUSES, PAPER_METHOD, _fail, _load_input_path, _load_scenario, _one_line,
                      _Run, _save_path, iterates_feasible, log)
 from .figures import _panels, _plotted_costs, _save_fig
-from .parser import _plan_unless_path_args, _scenario_arg, _smoother_args
+from .parser import _plan_unless_path_args, _risk_args, _scenario_arg, _smoother_args
 from .plan import _plan, _plan_failed
 
 
@@ -28,11 +28,13 @@ def add_parser(sub) -> None:
                     "max_iter, time_limit, ...) is printed; solver failures exit with code 3.",
         epilog="Examples:\n  belief-nlp smooth paper-multi --path out/plan.json\n"
                "  belief-nlp smooth paper-multi --path out/plan.json --method ccp --max-iter 15\n"
+               "  belief-nlp smooth paper-multi --risk 0.05 --allocation uniform --out out_risk\n"
                "  belief-nlp smooth paper-multi --nodes 500 --alpha 1.0 --method ipopt --out out_ipopt")
     _scenario_arg(ss)
     _smoother_args(ss, path=True)
     ss.add_argument("--gif", action="store_true",
                     help="also write OUT/smoothing.gif, one frame per kept feasible iterate (CCP: every iteration)")
+    _risk_args(ss, allocation=True)
     _plan_unless_path_args(ss)
     ss.set_defaults(func=_cmd_smooth)
 
@@ -68,6 +70,8 @@ def _cmd_smooth(run: _Run) -> int:
     run.say(f"smooth: {_status_line(res)}; steering cost at K = {res.path.K}: {res.initial_cost:.6g} -> "
             f"{res.cost:.6g} (control {res.control:.4g} + {res.alpha:g} x information {res.information:.4g} nats), "
             f"{res.nit} iterations")
+    if sc.risk is not None:
+        run.say(f"smooth: {res.risk.summary()}")
     if _smooth_failed(res):
         return _fail(f"smoothing failed: {_status_line(res)}")
     return EXIT_OK
@@ -81,9 +85,14 @@ def _smooth(run: _Run, sc, path, method: str, *, keep_iterates: bool = False, la
     log.info("%ssmoothing with %s: K = %d (%s), at most %d iterations", label, method.upper(), K, why,
              a.max_iter or get_method(method).max_iter)
     t0 = time.perf_counter()
+    budget = {}
+    if sc.risk is not None:            # the scenario's or --risk: the smoother allocates it
+        budget = {"risk": sc.risk}
+        if getattr(a, "allocation", None) is not None:
+            budget["allocation"] = a.allocation
     try:
         res = smooth(sc, path, method=method, K=K, max_iter=a.max_iter, tol=a.tol, solver=a.solver,
-                     time_limit=a.time_limit, keep_iterates=keep_iterates, progress=not run.quiet)
+                     time_limit=a.time_limit, keep_iterates=keep_iterates, progress=not run.quiet, **budget)
     except ImportError as exc:  # a method whose module is not installed
         raise BeliefNLPError(f"method {method!r} is not available in this installation: {exc}") from None
     log.info("%s%s: %s, cost %.6g after %d iterations in %.1f s", label, res.method.upper(), res.status,
@@ -158,7 +167,9 @@ def _scenario_and_path(run: _Run):
     Returns (scenario, path, None), or (scenario, None, exit code) when
     planning failed (the files written so far listed)."""
     a = run.args
-    sc = _load_scenario(a.scenario, a.alpha)
+    sc = _load_scenario(a.scenario, a.alpha, getattr(a, "risk", None))      # compare has no --risk
+    if getattr(a, "allocation", None) is not None and sc.risk is None:
+        raise ValidationError("--allocation", "needs a risk budget (--risk, or a scenario file with risk)")
     run.prepare_out()
     path, code = _obtain_path(run, sc)
     if path is None:

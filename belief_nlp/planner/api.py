@@ -5,9 +5,11 @@ from __future__ import annotations
 import os
 from typing import Any
 
+from ..allocation import RiskBudget
 from ..errors import ValidationError
 from ..scenario import Scenario, load_scenario
 from .ompl_baseline import DEFAULT_PLANNER, parse_planner, plan_ompl
+from .budget import plan_within_budget
 from .result import PlanResult
 from .rrt import IGRRTStar
 
@@ -16,7 +18,8 @@ __all__ = ["plan"]
 
 def plan(scenario: Scenario, n_nodes: int | None = None, seed: int | None = 0, alpha: float | None = None,
          metric: str = "entropy", noise: str | None = None, time_limit: float | None = None,
-         branch_and_bound: bool | None = None, planner: str = DEFAULT_PLANNER, **options: Any) -> PlanResult:
+         branch_and_bound: bool | None = None, planner: str = DEFAULT_PLANNER, risk: float | None = None,
+         **options: Any) -> PlanResult:
     """Plan a minimum-sensing belief path with IG-RRT* (or the OMPL baseline).
 
     Parameters
@@ -49,6 +52,16 @@ def plan(scenario: Scenario, n_nodes: int | None = None, seed: int | None = 0, a
         ``"ompl:AORRTC"``, ...): the mean path by OMPL under this library's
         exact transition checks, then the least sensing that keeps it safe
         (:mod:`~belief_nlp.planner.ompl_baseline`; needs the ``ompl`` extra).
+    risk : float, optional
+        An end-to-end collision-probability budget Delta in (0, 0.5): plan
+        a path whose certified bound on a collision at the step times
+        (:func:`belief_nlp.risk.path_risk`, ``step_time``) is at most Delta,
+        raising the planner's collision level in rounds until it is
+        (:mod:`~belief_nlp.planner.budget`); the target containment keeps
+        the scenario's chi2. None: ``scenario.risk`` when set, else the
+        scenario's fixed level for everything (plan a scenario that has a
+        budget at its fixed level with ``scenario.with_options(risk=None)``).
+        IG-RRT* only.
     **options
         The other fields of :class:`~belief_nlp.planner.options.PlannerOptions`
         (``eig_range``, ``max_radius``, ``gamma``, ``goal_bias``,
@@ -60,26 +73,38 @@ def plan(scenario: Scenario, n_nodes: int | None = None, seed: int | None = 0, a
     -------
     PlanResult
         ``success`` is True only for a path that passed
-        :func:`belief_nlp.verify`; otherwise ``message`` says why.
+        :func:`belief_nlp.verify` (and, with a budget, whose certified bound
+        is within it: ``risk`` records both); otherwise ``message`` says why.
 
     Raises
     ------
     ValidationError
         For an unknown option or an invalid value, naming it (an unknown
-        ``planner``: field ``planner``).
+        ``planner``: field ``planner``; a budget outside (0, 0.5), not a
+        number, or already spent by the start belief: field ``risk``).
     ScenarioFileError
         When ``scenario`` names a file that cannot be read.
     SolverError
         When an OMPL planner is asked for and the ``ompl`` package is missing.
     """
     ompl_name = parse_planner(planner)
+    if risk is not None:
+        RiskBudget(risk)                          # a bad budget is refused before any file is read
+    if isinstance(scenario, (str, os.PathLike)):
+        scenario = load_scenario(scenario)
+    if not isinstance(scenario, Scenario):
+        raise ValidationError("scenario", f"must be a Scenario, a built-in name or a scenario file, "
+                                          f"got {type(scenario).__name__}")
+    if risk is not None:
+        scenario = scenario.with_options(risk=risk)   # validated there: the start belief must leave some budget
     if ompl_name is not None:
+        if scenario.risk is not None:
+            raise ValidationError("risk", "applies to IG-RRT* only: OMPL planners plan at the scenario's fixed "
+                                          "level (plan scenario.with_options(risk=None))")
         for name, value in (("n_nodes", n_nodes), ("branch_and_bound", branch_and_bound)):
             if value is not None:
                 raise ValidationError(name, f"applies to IG-RRT* only; OMPL planners are time-bounded "
                                             f"(give time_limit)")
-        if isinstance(scenario, (str, os.PathLike)):
-            scenario = load_scenario(scenario)
         return plan_ompl(scenario, ompl_name, seed=seed, alpha=alpha, metric=metric, noise=noise,
                          time_limit=time_limit, **options)
     if noise is not None:
@@ -88,5 +113,7 @@ def plan(scenario: Scenario, n_nodes: int | None = None, seed: int | None = 0, a
         options["n_nodes"] = n_nodes
     if branch_and_bound is not None:
         options["branch_and_bound"] = branch_and_bound
+    if scenario.risk is not None:
+        return plan_within_budget(scenario, seed=seed, alpha=alpha, metric=metric, time_limit=time_limit, **options)
     igrrt = IGRRTStar(scenario, seed=seed, alpha=alpha, metric=metric, time_limit=time_limit, **options)
     return igrrt.plan()

@@ -107,14 +107,19 @@ def _sweep_dist2(xa, xb, Pb, xm, Pm, V, E) -> tuple[np.ndarray, np.ndarray]:
 
 
 class CollisionChecker:
-    """Clearance decisions against ``scenario.hazards`` (obstacles and walls)."""
+    """Clearance decisions against ``scenario.hazards`` (obstacles and walls).
+
+    The collisions are decided at ``chi2`` (default ``scenario.chi2``), the
+    target containment always at ``scenario.chi2``: a risk budget raises the
+    collision level only (:mod:`.budget`); the target is no collision."""
 
     exact_max_iter = 60     # rounds of the exact minimiser before a pair is left undecided
 
-    def __init__(self, scenario, safety_margin: float):
+    def __init__(self, scenario, safety_margin: float, chi2: float | None = None):
         self.dim = scenario.dim
-        self.chi2 = float(scenario.chi2)
+        self.chi2 = float(scenario.chi2 if chi2 is None else chi2)
         self.thr = self.chi2 * (1.0 + safety_margin)
+        self.thr_target = float(scenario.chi2) * (1.0 + safety_margin)
         self.thr_witness = self.thr * (1.0 - 1e-9)
         walls = [h for h in scenario.hazards if h.A.shape[0] == 1]
         obstacles = [h for h in scenario.hazards if h.A.shape[0] > 1]
@@ -374,4 +379,4 @@ class CollisionChecker:
         """Is E(x, P) inside the target (support function, chi2 with margin)?"""
         if (self.tb - x @ self.tA.T < 0).any():     # the mean outside: no margin can be >= 0
             return False
-        return bool(np.min(geometry.containment_margins(x, P, self.tA, self.tb, self.thr)) >= 0.0)
+        return bool(np.min(geometry.containment_margins(x, P, self.tA, self.tb, self.thr_target)) >= 0.0)

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .._limits import MAX_ALPHA, MAX_PLANNER_NODES, MAX_VARIANCE
+from .._limits import MAX_ALPHA, MAX_CHI2, MAX_PLANNER_NODES, MAX_VARIANCE
 from ..errors import ValidationError
 
 __all__ = ["PlannerOptions", "resolve_options", "METRICS", "NOISE_MODELS", "INFO_UNITS", "default_gamma"]
@@ -82,6 +82,11 @@ class PlannerOptions:
     safety_margin : relative margin on chi2 for every clearance decision
         (edges, sample ellipses, target containment) so that rounding never
         flips a verdict.
+    collision_chi2 : the squared radius the collision checks use (edges and
+        sample ellipses against obstacles and walls), at least the
+        scenario's chi2, which the target containment keeps; None: the
+        scenario's chi2. ``plan(..., risk=Delta)`` sets it from the budget
+        (:mod:`.budget`).
     progress : show a tqdm progress bar.
     """
 
@@ -106,6 +111,7 @@ class PlannerOptions:
     max_attempts: int | None = None
     safety_margin: float = 1e-6
     progress: bool = False
+    collision_chi2: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dict (tuples become lists)."""
@@ -169,10 +175,12 @@ def _bool(name: str, v: Any) -> bool:
     return bool(v)
 
 
-def resolve_options(scenario_defaults: dict | None, scenario_alpha: float, **kwargs: Any) -> PlannerOptions:
+def resolve_options(scenario_defaults: dict | None, scenario_alpha: float, scenario_chi2: float = 0.0,
+                    **kwargs: Any) -> PlannerOptions:
     """Merge defaults < ``scenario_defaults`` < ``kwargs`` and validate.
 
-    Unknown keys (in either source) raise ValidationError naming the key.
+    Unknown keys (in either source) raise ValidationError naming the key;
+    ``collision_chi2`` must be at least ``scenario_chi2``.
     """
     merged: dict[str, Any] = {}
     for source, where in ((scenario_defaults or {}, "scenario planner table"), (kwargs, "keyword")):
@@ -222,4 +230,7 @@ def resolve_options(scenario_defaults: dict | None, scenario_alpha: float, **kwa
         o["max_attempts"] = _positive_int("max_attempts", o["max_attempts"])
     o["safety_margin"] = _real("safety_margin", o["safety_margin"], 0.0, 0.1)
     o["progress"] = _bool("progress", o["progress"])
+    if o["collision_chi2"] is not None:
+        # below the scenario's chi2 the collision checks of verify(scenario, path) would fail
+        o["collision_chi2"] = _real("collision_chi2", o["collision_chi2"], float(scenario_chi2), MAX_CHI2)
     return PlannerOptions(**o)

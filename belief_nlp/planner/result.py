@@ -104,6 +104,19 @@ def _unnum(v: Any) -> float:
     return float(v)
 
 
+def _check_risk(risk: Any) -> None:
+    """A ``PlanResult.risk`` record (as :mod:`~belief_nlp.planner.budget` writes it), or ValidationError."""
+    if not isinstance(risk, dict):
+        raise ValidationError("risk", f"must be a dict or None, got {type(risk).__name__}")
+    for key in ("budget", "collision_chi2", "target_chi2", "bound"):
+        v = risk.get(key)
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)) and \
+                not (key == "bound" and v is None):
+            raise ValidationError(f"risk.{key}", f"must be a finite number, got {v!r:.40}")
+    if not isinstance(risk.get("rounds"), list):
+        raise ValidationError("risk.rounds", "must be a list of planning rounds")
+
+
 @dataclass(eq=False)
 class PlanResult:
     """Outcome of :func:`belief_nlp.plan` (IG-RRT*).
@@ -170,6 +183,18 @@ class PlanResult:
         The anytime curve in time: ``[[seconds since the start, best cost],
         ...]`` at each improvement (IG-RRT*: its planner cost; OMPL: OMPL's
         objective, the path length in metres).
+    risk : dict or None
+        For a plan within an end-to-end collision-probability budget
+        (``plan(..., risk=Delta)``, :mod:`~belief_nlp.planner.budget`):
+        ``budget`` (Delta), ``kind`` ("steps"), ``met``, ``bound`` (the
+        path's certified bound on a collision at the step times,
+        ``path_risk(scenario, path).step_time``, <= budget; None when not
+        met), ``collision_chi2`` (the planner's collision level),
+        ``target_chi2`` (the scenario's, kept for the target) and
+        ``rounds`` (each planning round: ``n_pairs`` (the pairs its level is
+        the warm start level of), ``collision_chi2``, ``found``, ``K``,
+        ``pairs_needed`` (J max(horizon, K)), ``bound``, ``seconds``). None
+        without a budget.
     """
 
     success: bool
@@ -193,6 +218,7 @@ class PlanResult:
     scenario: str = ""
     planner: str = "igrrt"
     cost_trace: list = field(default_factory=list)
+    risk: dict | None = None
 
     def __post_init__(self) -> None:
         if self.path is not None and not isinstance(self.path, BeliefPath):
@@ -210,6 +236,8 @@ class PlanResult:
         except (TypeError, ValueError) as exc:
             raise ValidationError("cost_trace", f"must be a list of [seconds, cost] pairs: {str(exc)[:200]}") from exc
         self.cost_trace = trace
+        if self.risk is not None:
+            _check_risk(self.risk)
 
     def __eq__(self, other: object) -> bool:
         """Field by field, NaN equal to NaN (a failed run's travel is NaN), so
@@ -267,6 +295,12 @@ class PlanResult:
             if risk is not None:
                 lines.append(f"  collision probability <= {risk:.3g} at the step times (certified; Boole over "
                              f"transition-hazard pairs, bn.verify(...).risk)")
+        if self.risk is not None:
+            r = self.risk
+            bound = "not met" if r.get("bound") is None else f"certified bound {r['bound']:.3g}"
+            lines.append(f"  risk budget {r.get('budget'):g} ({r.get('kind')}): {bound}; collisions at chi2 = "
+                         f"{r.get('collision_chi2'):.4g}, target at {r.get('target_chi2'):.4g}, "
+                         f"{len(r.get('rounds') or [])} planning round(s)")
         if self.planner == "igrrt":
             lines.append(f"  nodes {self.stats.get('nodes')}, attempts {self.stats.get('attempts')}, "
                          f"time {self.timings.get('total', float('nan')):.3g} s")
@@ -301,6 +335,7 @@ class PlanResult:
             "scenario": self.scenario,
             "planner": self.planner,
             "cost_trace": self.cost_trace,
+            "risk": self.risk,
         }
 
     def to_dict(self) -> dict[str, Any]:
@@ -334,6 +369,7 @@ class PlanResult:
                 verification=data.get("verification"), options=dict(data.get("options") or {}),
                 seed=data.get("seed"), scenario=str(data.get("scenario", "")),
                 planner=str(data.get("planner", "igrrt")), cost_trace=list(data.get("cost_trace") or []),
+                risk=data.get("risk"),
             )
         except ValidationError:
             raise

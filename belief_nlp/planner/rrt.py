@@ -102,7 +102,7 @@ class IGRRTStar(IterationMixin):
         if not isinstance(scenario, Scenario):
             raise ValidationError("scenario", f"must be a Scenario, got {type(scenario).__name__}")
         self.scenario = scenario
-        self.options: PlannerOptions = resolve_options(scenario.planner, scenario.alpha, **options)
+        self.options: PlannerOptions = resolve_options(scenario.planner, scenario.alpha, scenario.chi2, **options)
         o = self.options
         sc = scenario
         self.dim = sc.dim
@@ -136,7 +136,7 @@ class IGRRTStar(IterationMixin):
         cpu_start = time.process_time()
         rng = np.random.default_rng(o.seed)
         sampler = BeliefSampler(sc, o.eig_range, o.eig_ratio, o.goal_bias)
-        checker = CollisionChecker(sc, o.safety_margin)
+        checker = CollisionChecker(sc, o.safety_margin, o.collision_chi2)
         tree = BeliefTree(self.dim, capacity=min(o.n_nodes, 4096))
         self.tree_ = tree
         root_logdet = _safe_logdet(sc.P0)
