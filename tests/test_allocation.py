@@ -18,7 +18,7 @@ from belief_nlp.allocation import RiskAllocation, RiskBudget, level_bounds, leve
 from belief_nlp.errors import InfeasibleStartError, ValidationError
 from belief_nlp.model import BeliefModel
 from belief_nlp.model.cvxpy_form import compile_problem
-from belief_nlp.model.doc import _tail_majorant
+from belief_nlp.model.doc import _level_functions, level_curvature_bound
 from belief_nlp.risk import path_risk
 from belief_nlp.smoother.warmstart import warm_start
 
@@ -51,20 +51,27 @@ def test_tail_is_the_gaussian_tail_and_level_for_inverts_it():
     assert tail(0.0) == 1.0 and tail(-1.0) == 1.0
 
 
-def test_quadratic_majorant_bounds_the_tail_and_is_tight_at_the_point():
-    f = _tail_majorant()
-    taus = np.linspace(0.05, 40.0, 4001)
-    for at in (0.3, 1.0, 4.6, 9.0, 20.0):
-        lin, y, lower = (float(v) for v in f(at, at))
-        assert math.isclose(lin, float(tail(at)), rel_tol=1e-9) and y == 0.0 and lower == at / 2
-        ok = taus >= at / 2
-        vals = np.array([[float(v) for v in f(at, t)[:2]] for t in taus[ok]])
-        bound = vals[:, 0] + 0.5 * vals[:, 1] ** 2
-        assert np.all(bound >= tail(taus[ok]) * (1 - 1e-12) - 1e-15)
-        # slope matches at the point (central difference of g)
-        h = 1e-5 * at
-        slope = (float(f(at, at + h)[0]) - float(f(at, at - h)[0])) / (2 * h)
-        assert math.isclose(slope, (float(tail(at + h)) - float(tail(at - h))) / (2 * h), rel_tol=1e-5)
+def test_level_majorant_bounds_the_level_and_is_tight_at_the_point():
+    """tau = h(l) (the level of log risk l) lies below tau~ + h'(l~) dl +
+    M_up/2 max(dl, 0)^2 + h''(l~)/2 max(-dl, 0)^2 on the whole budgeted range,
+    with h' and h'' from CasADi checked against finite differences. (CasADi's
+    g is 1 - erf: ~1e-16 absolute, so points beyond tau ~ 35 lose digits; the
+    levels stop at tau_hi.)"""
+    budget = 0.05
+    f = _level_functions()
+    m_up = level_curvature_bound(budget)
+    ells = np.linspace(np.log(1e-12), np.log(budget), 20001)
+    h = level_for(np.exp(ells))
+    for tau_t in (2.8, 4.6, 9.0, 20.0, 28.0):      # tau_hi of this budget: 25.3
+        lt, h1, h2 = (float(v) for v in f(tau_t))
+        assert math.isclose(lt, math.log(tail(tau_t)), rel_tol=1e-8)
+        step = 1e-4
+        fd = (level_for(np.exp(lt + step)) - level_for(np.exp(lt - step))) / (2 * step)
+        fd2 = (level_for(np.exp(lt + step)) - 2 * level_for(np.exp(lt)) + level_for(np.exp(lt - step))) / step**2
+        assert math.isclose(h1, fd, rel_tol=1e-5) and math.isclose(h2, fd2, rel_tol=1e-3)
+        dl = ells - lt
+        bound = tau_t + h1 * dl + 0.5 * m_up * np.maximum(dl, 0) ** 2 + 0.5 * h2 * np.maximum(-dl, 0) ** 2
+        assert np.all(bound >= h * (1 - 1e-9))
 
 
 def test_level_bounds_bracket_the_uniform_level():
@@ -112,8 +119,8 @@ def test_convex_step_in_budget_mode_is_feasible_at_its_point(setting):
     step.z.value = step.layout.point_vector(z)
     for name, con in step.constraints.items():
         # (CVXPY measures an exponential cone by projection: its points on the boundary read ~1e-7)
-        assert np.max(con.violation(), initial=0.0) <= (1e-6 if name == "logdet_exp" else 1e-7), name
-    assert {"budget_tail", "budget_levels", "budget_total"} <= set(step.constraints)
+        assert np.max(con.violation(), initial=0.0) <= (1e-6 if name in ("logdet_exp", "budget_exp") else 1e-7), name
+    assert {"budget_exp", "budget_steps", "budget_levels", "budget_total"} <= set(step.constraints)
 
 
 def test_nlp_levels_round_trip(setting):

@@ -64,13 +64,16 @@ REUSE = {"CLARABEL"}
 TIME_LIMIT_OPTION = {"CLARABEL": "time_limit", "SCS": "time_limit_secs"}
 
 
-def solver_cascade(solver: str, options: dict | None = None) -> list[tuple[str, str, dict]]:
+def solver_cascade(solver: str, options: dict | None = None, budget: bool = False) -> list[tuple[str, str, dict]]:
     """The CCP step's cascade for ``solver``: [(solver, label, settings), ...]
-    (see the comment above; installed solvers only)."""
+    (see the comment above; installed solvers only). ``budget``: the step of a
+    risk allocation, whose exponential budget cones Clarabel answers only
+    inaccurately without presolve and equilibration (24 of 24 steps on
+    paper-multi at Delta = 0.05; docs/numerics.md): its defaults come first."""
     usable = usable_solvers()
-    out = [(solver, "library" if solver in SOLVER_DEFAULTS else "defaults",
-            {**SOLVER_DEFAULTS.get(solver, {}), **(options or {})})]
-    if solver in SOLVER_DEFAULTS:
+    lib = {} if budget else SOLVER_DEFAULTS.get(solver, {})
+    out = [(solver, "library" if lib else "defaults", {**lib, **(options or {})})]
+    if solver in SOLVER_DEFAULTS and out[0][2]:
         out.append((solver, "defaults", {}))
     for name, label, opts in (("CLARABEL", "defaults", {}), ("SCS", "high accuracy", HIGH_ACCURACY["SCS"])):
         if name in usable and not any(n == name and lab == label for n, lab, _ in out):
@@ -281,7 +284,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     # steps: per iteration, the solver (and settings) whose answer was taken and every attempt
     stats = {"compile": origin, "build_time": build_time, "solver_iterations": 0, "return_status": "",
              "iter_count": 0, "solve_time": 0.0, "cpu_time": 0.0, "steps": []}
-    cascade = solver_cascade(solver, problem.solver_options)
+    cascade = solver_cascade(solver, problem.solver_options, budget=problem.model.data.budget is not None)
     cpu0 = time.process_time()
     for it in range(first, problem.max_iter + 1):
         if problem.out_of_time():

@@ -13,9 +13,11 @@ hazards j, target faces n:
          target_lmis(x_K, C_n, Y_K) >= 0                                         (C4)
 
 Under a risk budget (``D.budget``, :mod:`belief_nlp.allocation`) each pair's
-chi2 is its own variable tau_kj (it enters both ends' h2 linearly, so the DOC
-structure survives) and sum_kj g(tau_kj) <= budget joins the program, with g
-convexified at the point by a quadratic majorant (:func:`_tail_majorant`).
+chi2 is its own level tau_kj and sum_kj g(tau_kj) <= budget joins the
+program. The step parameterises a level by its log risk l = log g(tau): the
+budget is then exact (exponential cones) and the level tau = h(l), convex in l
+with bounded curvature, enters both ends' h2 through a quadratic majorant
+tight at the point (:func:`_level_majorant`), so the DOC structure survives.
 The target keeps its own level ``D.chi2_target``.
 
 Its two nonconvex pieces are concave: alpha/2 log det Y_k in the objective and
@@ -48,6 +50,7 @@ import casadi as ca
 import numpy as np
 
 from . import terms
+from ..allocation import tail
 from .data import Layout, ProblemData
 
 __all__ = ["ConeFamily", "ConvexForm", "StepLayout", "convex_form", "tangent"]
@@ -84,8 +87,10 @@ class Blocks:
     Z: np.ndarray      # (K+1, d, d) lower triangular, k >= 2 (log det epigraph)
     u: np.ndarray      # (K+1, d) k >= 2
     n: int
-    tau: np.ndarray | None = None   # (K, J) per-pair levels (budget mode)
-    t: np.ndarray | None = None     # (K, J) their tail bounds, in units of the budget
+    ell: np.ndarray | None = None   # (K, J) step dl of the log risk l = log g(tau) per pair (budget mode)
+    e: np.ndarray | None = None     # (K, J) exp(l) in units of an even share, budget / (K J)
+    up: np.ndarray | None = None    # (K, J) max(l - l~, 0) epigraphs
+    dn: np.ndarray | None = None    # (K, J) max(l~ - l, 0) epigraphs
 
 
 def _blocks(D: ProblemData) -> Blocks:
@@ -125,9 +130,8 @@ def _blocks(D: ProblemData) -> Blocks:
     for k in range(2, K + 1):
         Z[k, li, lj] = alloc(li.size)
         u[k] = alloc(d)
-    tau = alloc((K, J)) if D.budget is not None else None
-    t = alloc((K, J)) if D.budget is not None else None
-    return Blocks(x, Q, S, lam, R_end, R_start, C, R0, Z, u, counter[0], tau, t)
+    ell, e, up, dn = (alloc((K, J)) if D.budget is not None else None for _ in range(4))
+    return Blocks(x, Q, S, lam, R_end, R_start, C, R0, Z, u, counter[0], ell, e, up, dn)
 
 
 def _pick(z: ca.SX, idx: np.ndarray) -> ca.SX:
@@ -156,19 +160,21 @@ def tangent(f: ca.Function, n_lin: int | None = None) -> ca.Function:
     return ca.Function(f"{f.name()}_tangent", at + to + data, [lin])
 
 
-def _pair_function(d: int, F: int) -> ca.Function:
-    """One end of one (transition, hazard) pair at level ``chi2`` (a constant,
-    or the pair's variable level tau_kj): the h1 LMI entries and the
-    convexified h2 as a rotated second-order cone (module doc)."""
+def _pair_function(d: int, F: int, n_quad: int = 0) -> ca.Function:
+    """One end of one (transition, hazard) pair at level ``chi2`` + 1/2 ||q||^2
+    (``chi2`` affine: a constant, or the affine part of the pair's level
+    majorant; ``q``: its ``n_quad`` quadratic parts, budget mode): the h1 LMI
+    entries and the convexified h2 as a rotated second-order cone (module doc)."""
     lam, lt, R, chi2 = ca.SX.sym("lam", F), ca.SX.sym("lam_t", F), ca.SX.sym("R"), ca.SX.sym("chi2")
+    q = ca.SX.sym("q", n_quad)
     x, xt, Y = ca.SX.sym("x", d), ca.SX.sym("x_t", d), ca.SX.sym("Y", d, d)
     A, b, r = ca.SX.sym("A", F, d), ca.SX.sym("b", F), ca.SX.sym("sqrt_rho")
     bil = tangent(ca.Function("bilinear", [lam, x, A, b], [terms.bilinear(lam, x, A, b)]), 2)
     h2_lin = R + chi2 - bil(lt, xt, lam, x, A, b)          # h2 with h replaced by its tangent
     dv = ca.mtimes(A.T, lam - lt)
     h1 = terms.h1_lmi(R, ca.mtimes(A.T, lam), Y)
-    return ca.Function("collision_pair", [lam, lt, R, x, xt, Y, A, b, r, chi2],
-                       [ca.vec(h1), _rsoc(-h2_lin, r * dv - (x - xt) / r)])
+    return ca.Function("collision_pair", [lam, lt, R, x, xt, Y, A, b, r, chi2, q],
+                       [ca.vec(h1), _rsoc(-h2_lin, ca.vertcat(r * dv - (x - xt) / r, q))])
 
 
 def start_factor(P0: np.ndarray) -> tuple[np.ndarray, float]:
@@ -185,40 +191,70 @@ def _rsoc(w: ca.SX, y: ca.SX) -> ca.SX:
     return ca.vertcat((w + 1) / s2, y, (w - 1) / s2)
 
 
-def _tail_majorant() -> ca.Function:
-    """(tau~, tau) -> (g(tau~) + g'(tau~) dtau, sqrt(M) dtau, lower) with dtau = tau - tau~,
-    g(tau) = Phi_bar(sqrt(tau)) (CasADi's derivatives), M = g''(lower) and
-    lower = tau~ / 2: on tau >= lower, g(tau) <= lin + M/2 dtau^2 (descent
-    lemma; g'' decreases in tau), tight at tau~ in value and slope."""
-    at, to = ca.SX.sym("tau_t"), ca.SX.sym("tau")
-    g = ca.Function("tail", [to], [0.5 * (1 - ca.erf(ca.sqrt(to / 2)))])
-    lin = tangent(g)(at, to)
-    lower = at / 2
-    curv = ca.hessian(g(to), to)[0]
-    M = ca.substitute(curv, to, lower)
-    return ca.Function("tail_majorant", [at, to], [lin, ca.sqrt(M) * (to - at), lower])
+def _level_functions() -> ca.Function:
+    """tau~ -> (l~, h'(l~), h''(l~)) for the level as a function of the log risk,
+    h(l) = tau with g(tau) = exp(l): l~ = log g(tau~), h' = -2 s q / phi(s),
+    h'' = 2 q / phi(s) (q (1 + s^2) / phi(s) - s), s = sqrt(tau~), q = g(tau~)."""
+    tau = ca.SX.sym("tau")
+    s = ca.sqrt(tau)
+    q = 0.5 * (1 - ca.erf(s / np.sqrt(2)))
+    phi = ca.exp(-tau / 2) / np.sqrt(2 * np.pi)
+    return ca.Function("level_of_log_risk", [tau], [ca.log(q), -2 * s * q / phi,
+                                                   2 * q / phi * (q * (1 + tau) / phi - s)])
+
+
+def level_curvature_bound(budget: float) -> float:
+    """max of h''(l) = d^2 tau / dl^2 over l <= log(budget) (h'' rises with l up
+    to q ~ 0.2, then falls): the curvature of the level majorant where the log
+    risk rises. A dense grid with 5 % to spare (h is smooth; every iterate is
+    checked exactly anyway, so the bound only decides acceptance)."""
+    from scipy.special import ndtri
+    from scipy.stats import norm
+
+    q = np.geomspace(1e-16, budget, 20001)
+    s = -ndtri(q)
+    phi = norm.pdf(s)
+    hpp = 2 * q / phi * (q * (1 + s**2) / phi - s)
+    return 1.05 * float(np.max(hpp))
+
+
+def _level_majorant(D: ProblemData, B: Blocks, z: ca.SX, tau_t: ca.SX) -> tuple[ca.SX, list]:
+    """The pairs' levels as functions of their log risks l (budget mode):
+    tau = h(l) is convex in l with h'' rising in l (up to q ~ 0.2), so with
+    dl = l - l~, up >= max(dl, 0), dn >= max(-dl, 0),
+
+        tau <= tau~ + h'(l~) dl + M_up/2 up^2 + h''(l~)/2 dn^2
+
+    (M_up = :func:`level_curvature_bound`), tight at the point in value and
+    slope. Returns the affine part (K, J) and the two quadratic parts' roots."""
+    K, J = D.K, D.J
+    dl, up, dn = (_pick(z, M) for M in (B.ell, B.up, B.dn))
+    _, h1, h2 = _level_functions().map(K * J)(tau_t.T)
+    h1, h2 = (ca.reshape(v, J, K).T for v in (h1, h2))
+    tt = ca.reshape(tau_t, J, K).T
+    aff = tt + h1 * dl
+    m_up = np.sqrt(level_curvature_bound(float(D.budget)))
+    return aff, [m_up * up, ca.sqrt(h2) * dn]
 
 
 def _budget_families(D: ProblemData, B: Blocks, z: ca.SX, tau_t: ca.SX) -> list[ConeFamily]:
-    """sum_kj g(tau_kj) <= budget, g convexified at the point's levels tau~ by a
-    quadratic majorant tight there (:func:`_tail_majorant`), in units of the
-    budget: t_kj >= (lin_kj + M_kj/2 dtau_kj^2) / budget (a rotated cone),
-    sum t_kj <= 1, max(tau_lo, tau~/2) <= tau_kj <= tau_hi. Every answer's
-    levels keep sum g <= budget; the step stays a DPP cone program. (The
-    piecewise-linear bound through fixed knots, ~10 nearly parallel rows per
-    pair, made Clarabel stall: docs/numerics.md, "Risk allocation".)"""
+    """sum_kj exp(l_kj) <= budget exactly (exponential cones, in units of an
+    even share s = budget / (K J): exp(l - log s) <= e, sum e / (K J) <= 1), the epigraphs up/dn of the
+    log risk's step from the point, and log(floor) <= l <= log(budget): a pair's
+    level stays in [tau_lo, tau_hi] (:func:`belief_nlp.allocation.level_bounds`).
+    The step stays a DPP cone program."""
     tau_lo, tau_hi = D.level_bounds
-    tau = _pick(z, B.tau.ravel()[:, None])
-    t = _pick(z, B.t.ravel()[:, None])
-    n = int(tau.numel())
-    lin, y, lower = _tail_majorant().map(n)(tau_t.T, tau.T)
-    w = t.T - lin / D.budget
-    y = y / np.sqrt(D.budget)
-    cones = ca.vertcat((w + 1) / np.sqrt(2), y, (w - 1) / np.sqrt(2))      # 1/2 y^2 <= w per pair (columns)
-    return [ConeFamily("budget_tail", "soc", 3, n, ca.vec(cones)),
-            ConeFamily("budget_levels", "nonneg", 1, 2 * n,
-                       ca.vertcat(tau - ca.fmax(tau_lo, lower.T), tau_hi - tau)),
-            ConeFamily("budget_total", "nonneg", 1, 1, 1 - ca.sum1(t))]
+    dl, e, up, dn = (_pick(z, M.ravel()[:, None]) for M in (B.ell, B.e, B.up, B.dn))
+    n = int(dl.numel())
+    lt = _level_functions().map(n)(tau_t.T)[0].T
+    ell = lt + dl                                # the variable is the step (no large constants)
+    lb = float(np.log(tail(tau_hi)))
+    share = D.budget / n                         # e in units of an even share: O(1) where it matters
+    exp_rows = ca.vertcat(*[ca.vertcat(ell[i] - np.log(share), 1, e[i]) for i in range(n)])
+    return [ConeFamily("budget_exp", "exp", 3, n, exp_rows),
+            ConeFamily("budget_steps", "nonneg", 1, 4 * n, ca.vertcat(up - dl, up, dn + dl, dn)),
+            ConeFamily("budget_levels", "nonneg", 1, 2 * n, ca.vertcat(ell - lb, np.log(D.budget) - ell)),
+            ConeFamily("budget_total", "nonneg", 1, 1, 1 - ca.sum1(e) / n)]
 
 
 @dataclass
@@ -234,7 +270,7 @@ class StepLayout:
         """Parameter vector of ``point`` with split weights rho (K, J) at both ends."""
         parts = [point.x.ravel(), point.Q.ravel(), point.S.ravel(), point.lam.ravel(),
                  np.asarray(rho_start, float).ravel(), np.asarray(rho_end, float).ravel()]
-        if self.blocks.tau is not None:
+        if self.blocks.ell is not None:
             parts.append(np.asarray(point.tau, float).ravel())
         return np.concatenate(parts)
 
@@ -265,11 +301,12 @@ class StepLayout:
             Zk = L * np.diag(L)[None, :]
             out[B.Z[k, li, lj]] = Zk[li, lj]
             out[B.u[k]] = np.log(np.diag(Zk))
-        if B.tau is not None:
+        if B.ell is not None:
             from ..allocation import tail
 
-            out[B.tau] = point.tau
-            out[B.t] = tail(point.tau) / D.budget         # the majorant is tight at the point
+            q = tail(point.tau)
+            out[B.ell] = 0.0
+            out[B.e] = q / (D.budget / D.n_pairs)           # up = dn = 0: the majorant is tight here
         return out
 
     def extract(self, zv: np.ndarray, point: Layout) -> Layout:
@@ -289,7 +326,11 @@ class StepLayout:
         w, V = np.linalg.eigh(S[1:])
         S[1:] = (V * np.maximum(w, 0.0)[:, None, :]) @ np.swapaxes(V, -1, -2)
         lam = np.where(B.lam >= 0, zv[np.maximum(B.lam, 0)], 0.0)
-        tau = None if B.tau is None else zv[B.tau].copy()
+        tau = None
+        if B.ell is not None:
+            from ..allocation import level_for
+
+            tau = level_for(tail(point.tau) * np.exp(zv[B.ell]))
         return Layout(x, Q, S, np.maximum(lam, 0.0), tau)
 
 
@@ -326,11 +367,9 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
     chi2 = D.chi2 * (1.0 + chi2_margin)
     chi2_t = D.chi2_target * (1.0 + chi2_margin)
     z = ca.SX.sym("z", B.n)
-    # each pair's level: the fixed chi2, or its variable tau_kj (budget mode), with the margin
-    Lev = (_pick(z, B.tau) * (1.0 + chi2_margin) if B.tau is not None else ca.DM.ones(K, J) * chi2)
     # parameters: the point (x, Q, S, lam) and the split weights
     sizes = [(K + 1) * d, (K + 1) * d * d, (K + 1) * d * d, K * J * F, K * J, K * J]
-    if B.tau is not None:
+    if B.ell is not None:
         sizes.append(K * J)                           # the point's levels tau~ (budget mode)
     p = ca.SX.sym("p", int(sum(sizes)))
     parts = ca.vertsplit(p, list(np.concatenate([[0], np.cumsum(sizes)]).astype(int)))
@@ -340,6 +379,13 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
     lamt = ca.reshape(parts[3], F, K * J)             # column k*J + j
     rho_s = parts[4]
     rho_e = parts[5]
+    # each pair's level: the fixed chi2, or (budget mode) the majorant of its level
+    # tau_kj = h(l_kj) <= aff_kj + 1/2 ||quad_kj||^2 (see _level_majorant), with the margin
+    if B.ell is not None:
+        aff, quad = _level_majorant(D, B, z, parts[6])
+        Lev, Quad = aff * (1.0 + chi2_margin), [qq * np.sqrt(1.0 + chi2_margin) for qq in quad]
+    else:
+        Lev, Quad = ca.DM.ones(K, J) * chi2, []
 
     X = [ca.DM(D.x0)] + [xt[:, k] + _pick(z, B.x[k][:, None]) for k in range(1, K + 1)]
     Q = [None, ca.DM(D.Q1)] + [_pick(z, B.Q[k]) for k in range(2, K + 1)]
@@ -376,7 +422,7 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
 
     # collision constraints: h1 exactly, h2 with the bilinear term convexified;
     # one pair function mapped over every (transition, hazard) end
-    pair = _pair_function(d, F)
+    pair = _pair_function(d, F, len(Quad))
     for name, ks, end in (("end", np.arange(1, K + 1), True), ("start", np.arange(2, K + 1), False)):
         if ks.size == 0:
             continue
@@ -396,10 +442,12 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
         A = ca.DM(np.concatenate(list(D.A[jj]), axis=1))
         b = ca.DM(D.b[jj].T)
         r = ca.sqrt((rho_e if end else rho_s)[((kk - 1) * J + jj).tolist()]).T
-        lev = ca.vertcat(*[Lev[int(k) - 1, int(j)] for k, j in zip(kk, jj)]).T
-        h1, h2 = pair.map(nb)(lam, lt, R, x, xt[:, kx.tolist()], Yv + ca.DM(Yc), A, b, r, lev)
+        pick = ((kk - 1) * J + jj).tolist()
+        lev = ca.vec(Lev.T)[pick].T
+        quad = ca.vertcat(*[ca.vec(qq.T)[pick].T for qq in Quad]) if Quad else ca.SX(0, nb)
+        h1, h2 = pair.map(nb)(lam, lt, R, x, xt[:, kx.tolist()], Yv + ca.DM(Yc), A, b, r, lev, quad)
         fam.append(ConeFamily(f"h1_{name}", "psd", d + 1, nb, ca.vec(h1)))
-        fam.append(ConeFamily(f"h2_{name}", "soc", d + 2, nb, ca.vec(h2)))
+        fam.append(ConeFamily(f"h2_{name}", "soc", d + 2 + len(Quad), nb, ca.vec(h2)))
     # k = 1, start end (C8): v^T P0 v <= 2 lam^T (A x0 - b) - chi2, exactly (x0 fixed),
     # as eps0^2 R0 <= 2 lam^T (A x0 - b) - chi2 and R0 >= ||L0^T v / eps0||^2 (an LMI), with
     # P0 = L0 L0^T and eps0 = ||L0||: the LMI's entries are O(1) however small P0 is (the
@@ -411,9 +459,13 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
         A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
         lam = Lam[0][j]
         R0 = z[int(B.R0[j])]
-        h2_first.append(terms.bilinear(lam, X[0], A, b) - Lev[0, j] - eps0**2 * R0)
+        w = terms.bilinear(lam, X[0], A, b) - Lev[0, j] - eps0**2 * R0
+        h2_first.append(_rsoc(w, ca.vertcat(*[qq[0, j] for qq in Quad])) if Quad else w)
         h1_first.append(terms.h1_lmi(R0, ca.mtimes(ca.DM(L0 / eps0).T, ca.mtimes(A.T, lam)), ca.DM.eye(d)))
-    add("start_h2", "nonneg", 1, h2_first)
+    if Quad:
+        add("start_h2", "soc", 2 + len(Quad), h2_first)
+    else:
+        add("start_h2", "nonneg", 1, h2_first)
     add("start_h1", "psd", d + 1, h1_first)
     t1, t2 = [], []
     for n in range(N):
@@ -422,6 +474,6 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
         t2.append(m2)
     add("target_face", "psd", 2, t1)
     add("target_shape", "psd", d + 1, t2)
-    if B.tau is not None:
+    if B.ell is not None:
         fam.extend(_budget_families(D, B, z, parts[6]))
     return ConvexForm(StepLayout(D, B), z, p, objective, fam, chi2)
