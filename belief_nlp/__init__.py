@@ -14,6 +14,7 @@ from .errors import (BeliefNLPError, InfeasibleStartError, ScenarioFileError, So
 from .path import BeliefPath
 from .polytope import Polytope
 from .scenario import Scenario, list_scenarios, load_scenario, save_scenario, scenario_from_dict
+from .allocation import RiskAllocation, RiskBudget
 from .verify import VerificationReport, verify
 from .smoother import (DEFAULT_METHOD, STATUSES, IterationRecord, Method, Option, Outcome, SmoothResult,
                        SmoothingProblem, WarmStart, available_methods, get_method, smooth, warm_start)
@@ -38,6 +39,8 @@ def __getattr__(name: str):
 
 
 __all__ = [
+    "RiskAllocation",
+    "RiskBudget",
     "BeliefNLPError",
     "DEFAULT_METHOD",
     "Method",

@@ -13,11 +13,11 @@ bounds the probability of being inside some hazard at the step times by
 Boole's inequality (:mod:`belief_nlp.risk`, ``step_time``).
 
 * ``allocation="optimal"``: the tau_kj are decision variables of the one
-  symbolic model (:mod:`belief_nlp.model.doc`, :mod:`belief_nlp.model.nlp_form`);
-  the NLP uses g exactly, the CCP step's SDP the piecewise-linear upper bound
-  of :func:`tail_pieces` (chords of g through knots whose tail values are a
-  fixed ratio apart, plus the constant g(tau_hi)), so every CCP iterate is
-  certified and the step stays DPP.
+  symbolic model (:mod:`belief_nlp.model.doc`, :mod:`belief_nlp.model.nlp_form`)
+  in [tau_lo, tau_hi] (:func:`level_bounds`); the NLP uses g exactly, each
+  CCP step a convex quadratic majorant of g tight at the current levels
+  (g is convex with g'' decreasing, so g''(tau~/2) bounds its curvature on
+  tau >= tau~/2), so every CCP iterate is certified and the step stays DPP.
 * ``allocation="uniform"``: every pair at tau = g^-1(Delta / (K J)), the
   paper's fixed-level problem at that level.
 
@@ -36,14 +36,10 @@ from scipy.special import ndtr, ndtri
 
 from .errors import ValidationError
 
-__all__ = ["RiskBudget", "RiskAllocation", "tail", "level_for", "tail_pieces", "ALLOCATIONS", "RISK_KINDS"]
+__all__ = ["RiskBudget", "RiskAllocation", "tail", "level_for", "level_bounds", "ALLOCATIONS", "RISK_KINDS"]
 
 ALLOCATIONS = ("optimal", "uniform")
 RISK_KINDS = ("steps",)
-# Ratio of consecutive knots' tail values in the SDP's bound: the chord of
-# g between two such knots lies at most ~3 % above g (measured by
-# tests/test_allocation.py).
-KNOT_RATIO = 1.5
 # Smallest tail value a pair is modelled with, relative to Delta / (K J): below
 # it the bound is the constant g(tau_hi) (a pair far from every hazard).
 FLOOR = 1e-3
@@ -62,31 +58,13 @@ def level_for(p: np.ndarray | float) -> np.ndarray:
     return ndtri(p) ** 2
 
 
-def tail_pieces(budget: float, n_pairs: int) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """A convex piecewise-linear upper bound of g on [tau_lo, inf).
-
-    Returns (slope, intercept, tau_lo, tau_hi): g(tau) <= max_i(slope_i tau +
-    intercept_i) for every tau >= tau_lo = g^-1(budget). The pieces are the
-    chords of g between knots tau_lo < ... < tau_hi whose tail values fall by
-    :data:`KNOT_RATIO` (an upper bound between its knots since g is convex),
-    and the constant g(tau_hi) (an upper bound beyond tau_hi since g
-    decreases), tau_hi = g^-1(FLOOR budget / n_pairs)."""
-    p_hi = budget
-    p_lo = FLOOR * budget / max(n_pairs, 1)
-    n = max(2, int(math.ceil(math.log(p_hi / p_lo) / math.log(KNOT_RATIO))) + 1)
-    p = np.geomspace(p_hi, p_lo, n)
-    tau = level_for(p)
-    p = tail(tau)                                  # exact values at the knots
-    slope = np.diff(p) / np.diff(tau)
-    intercept = p[:-1] - slope * tau[:-1]
-    return (np.append(slope, 0.0), np.append(intercept, p[-1]), float(tau[0]), float(tau[-1]))
-
-
-def pwl_tail(tau: np.ndarray, budget: float, n_pairs: int) -> np.ndarray:
-    """The bound of :func:`tail_pieces` evaluated at ``tau`` (>= g(tau))."""
-    a, c, _, _ = tail_pieces(budget, n_pairs)
-    tau = np.asarray(tau, dtype=float)
-    return np.max(a * tau[..., None] + c, axis=-1)
+def level_bounds(budget: float, n_pairs: int) -> tuple[float, float]:
+    """(tau_lo, tau_hi): the range a pair's level is optimised in. tau_lo =
+    g^-1(budget) (no single pair may spend more than the whole budget);
+    tau_hi = g^-1(FLOOR budget / n_pairs), beyond which a pair's risk is
+    negligible (capping there leaves no free direction to a pair far from
+    its hazard; together the capped pairs spend at most FLOOR budget)."""
+    return float(level_for(budget)), float(level_for(FLOOR * budget / max(int(n_pairs), 1)))
 
 
 @dataclass(frozen=True)
@@ -131,9 +109,8 @@ class RiskBudget:
         return float(level_for(self.budget / n_pairs))
 
     def warm_level(self, n_pairs: int) -> float:
-        """The level of the warm start of an optimal allocation: uniform at 90 %
-        of the budget, so that the SDP's piecewise-linear bound (at most ~3 %
-        above g) and the floor pieces still fit in the budget."""
+        """The first level tried for the warm start of an optimal allocation:
+        uniform at 90 % of the budget (slack for the first steps)."""
         return float(level_for(0.9 * self.budget / n_pairs))
 
 
@@ -180,16 +157,19 @@ class RiskAllocation:
         return float(np.sum(self.allocation))
 
     def summary(self) -> str:
+        """One line: the budget, the method, the certified bound and the allotted sum."""
         return (f"risk budget {self.budget:.3g} ({self.method} allocation, {self.kind}): certified bound "
                 f"{self.bound:.3g}, allotted {self.allotted:.3g}")
 
     def to_dict(self) -> dict:
+        """JSON-ready data (what ``SmoothResult.save`` writes)."""
         return {"budget": self.budget, "method": self.method, "kind": self.kind, "bound": self.bound,
                 "allotted": self.allotted, "allocation": np.asarray(self.allocation).tolist(),
                 "levels": np.asarray(self.levels).tolist(), "hazard_names": list(self.hazard_names)}
 
     @classmethod
     def from_dict(cls, d: dict) -> "RiskAllocation":
+        """The allocation written by :meth:`to_dict`."""
         return cls(float(d["budget"]), np.asarray(d["allocation"], float), np.asarray(d["levels"], float),
                    float(d["bound"]), str(d["method"]), str(d.get("kind", "steps")),
                    tuple(d.get("hazard_names", ())))

@@ -340,7 +340,7 @@ def _unmeasured_report(path: BeliefPath, names: list[str], tol: float, problems:
 
 
 # ------------------------------------------------------------ certificates
-def _certificate_margins(scenario: Scenario, path: BeliefPath, lam: np.ndarray) -> np.ndarray:
+def _certificate_margins(scenario: Scenario, path: BeliefPath, lam: np.ndarray, levels: np.ndarray) -> np.ndarray:
     """min(f_0(lam), f_1(lam)) - chi2 per transition and hazard, closed form:
     f_s(lam) = -v^T P(s) v + 2 lam^T (A x(s) - b), v = A^T lam, at s = 0 (P_{k-1})
     and s = 1 (P_{k-1} + W_k). For lam >= 0 a lower bound on min_s dist2 (Theorem 1)."""
@@ -353,12 +353,12 @@ def _certificate_margins(scenario: Scenario, path: BeliefPath, lam: np.ndarray) 
         v = lj @ h.A                                                  # (K, d)
         f0 = -np.einsum("kd,kde,ke->k", v, P0, v) + 2 * np.einsum("kf,kf->k", lj, path.x[:-1] @ h.A.T - h.b)
         f1 = -np.einsum("kd,kde,ke->k", v, P1, v) + 2 * np.einsum("kf,kf->k", lj, path.x[1:] @ h.A.T - h.b)
-        out[:, j] = np.minimum(f0, f1) - scenario.chi2
+        out[:, j] = np.minimum(f0, f1) - levels[:, j]
     return out
 
 
 def _with_certificates(report: VerificationReport, scenario: Scenario, path: BeliefPath,
-                       certificates) -> VerificationReport:
+                       certificates, levels: np.ndarray) -> VerificationReport:
     """The report with the closed-form certificate check added."""
     lam = np.asarray(certificates, dtype=float)
     F = max(h.n_faces for h in scenario.hazards)
@@ -370,7 +370,7 @@ def _with_certificates(report: VerificationReport, scenario: Scenario, path: Bel
         problems.append("certificates must be finite and >= 0 (Theorem 1 holds only for lam >= 0)")
         cm = np.full((path.K, len(scenario.hazards)), np.nan)
     else:
-        cm = _certificate_margins(scenario, path, lam)
+        cm = _certificate_margins(scenario, path, lam, levels)
         for k, j in np.argwhere(~(cm >= 0))[:20]:
             problems.append(f"transition {k + 1} vs {report.hazard_names[j]}: the certificate does not prove "
                             f"clearance (margin {cm[k, j]:.3g})")
@@ -381,7 +381,8 @@ def _with_certificates(report: VerificationReport, scenario: Scenario, path: Bel
 
 # ------------------------------------------------------------------ verify
 def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_samples: int = 101,
-           n_refine: int = 41, tol: float = 1e-6, certificates: np.ndarray | None = None) -> VerificationReport:
+           n_refine: int = 41, tol: float = 1e-6, certificates: np.ndarray | None = None,
+           levels: float | np.ndarray | None = None, budget: float | None = None) -> VerificationReport:
     """Check a belief path for safety and consistency, independently of the solvers.
 
     Every transition is checked against every hazard by dense sampling of
@@ -414,6 +415,15 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
         taken from ``path`` when it is a result that carries them). Each
         must be >= 0 and prove its pair in closed form, min(f_0, f_1) >=
         chi2 (docs/safety.md); otherwise the path is not called safe.
+    levels : float or ndarray, shape (K, J), optional
+        The collision level of every transition-hazard pair (a path smoothed
+        under a risk budget has its own per pair, ``SmoothResult.risk.levels``);
+        None: the scenario's chi2. The target is always judged at the
+        scenario's own chi2.
+    budget : float, optional
+        An end-to-end collision budget: the path is safe only when its
+        certified step-time bound (``report.risk.step_time``) is at most
+        ``budget``.
 
     Returns
     -------
@@ -440,6 +450,11 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
                               f"path is {path.dim}-D but the scenario is {scenario.dim}-D")
     hazards = list(scenario.hazards)
     names = [h.name for h in hazards]
+    levels = _levels(levels, path.K, len(hazards), scenario.chi2)
+    if budget is not None:
+        from .allocation import RiskBudget
+
+        budget = RiskBudget(budget).budget
     unmeasurable = [f"path.{f} contains NaN or infinite values" for f in ("x", "P", "P_prior", "S")
                     if not np.all(np.isfinite(getattr(path, f)))]
     unmeasurable += [f"path.{f} has entries beyond {_MAX_CHECKABLE:g}; not checked" for f in ("x", "P", "P_prior", "S")
@@ -448,16 +463,34 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
         return _unmeasured_report(path, names, tol, unmeasurable)
     with np.errstate(all="ignore"):  # overflow gives NaN margins, which _measure reports
         try:
-            report = _measure(scenario, path, hazards, names, n_samples, n_refine, tol)
+            report = _measure(scenario, path, hazards, names, n_samples, n_refine, tol, levels)
             if certificates is not None:
-                report = _with_certificates(report, scenario, path, certificates)
-            return replace(report, risk=path_risk(scenario, path, certificates))
+                report = _with_certificates(report, scenario, path, certificates, levels)
+            report = replace(report, risk=path_risk(scenario, path, certificates))
+            if budget is not None and not report.risk.step_time <= budget * (1 + 1e-9):
+                report = replace(report, safe=False, problems=report.problems + [
+                    f"the certified step-time collision bound {report.risk.step_time:.4g} exceeds the budget "
+                    f"{budget:.4g}"])
+            return report
         except np.linalg.LinAlgError as exc:  # an eigen-solver gave up: nothing is proven
             return _unmeasured_report(path, names, tol, [f"numerical failure while measuring the path: {exc}"])
 
 
+def _levels(levels: object, K: int, J: int, chi2: float) -> np.ndarray:
+    """(K, J) collision levels from None (the scenario's chi2), a number or an array."""
+    if levels is None:
+        return np.full((K, J), float(chi2))
+    try:
+        lv = np.broadcast_to(np.asarray(levels, dtype=float), (K, J)).copy()
+    except (ValueError, TypeError):
+        raise ValidationError("levels", f"must be a number or a ({K}, {J}) array of levels") from None
+    if not np.all(np.isfinite(lv)) or np.any(lv <= 0):
+        raise ValidationError("levels", "every level must be a finite number > 0")
+    return lv
+
+
 def _measure(scenario: Scenario, path: BeliefPath, hazards: list[Polytope], names: list[str], n_samples: int,
-             n_refine: int, tol: float) -> VerificationReport:
+             n_refine: int, tol: float, levels: np.ndarray) -> VerificationReport:
     problems: list[str] = []
     # Covariances must be symmetric PSD for the ellipses to mean anything;
     # report it, and sample with the nearest PSD matrices so the rest of the
@@ -487,7 +520,7 @@ def _measure(scenario: Scenario, path: BeliefPath, hazards: list[Polytope], name
         Pr = P_post[:-1, None] + r[..., None, None] * Wk[:, None]
         vr = _sqdist(xr.reshape(-1, scenario.dim), Pr.reshape(-1, scenario.dim, scenario.dim), h)
         # np.minimum and min() propagate NaN: an undecidable sample keeps the pair undecided
-        margins[:, j] = np.minimum(vals.min(axis=1), vr.reshape(K, n_refine).min(axis=1)) - chi2
+        margins[:, j] = np.minimum(vals.min(axis=1), vr.reshape(K, n_refine).min(axis=1)) - levels[:, j]
 
     atol = tol * chi2
     # target containment of the final posterior
@@ -535,7 +568,7 @@ def _measure(scenario: Scenario, path: BeliefPath, hazards: list[Polytope], name
         min_margin = min_target
         worst = f"target face {int(np.argmin(t_ranked))} (final ellipse containment)"
     # Each test is "not (good)", so that NaN counts as a failure.
-    bad = np.argwhere(~(margins >= -atol))
+    bad = np.argwhere(~(margins >= -tol * levels))
     for k, j in bad[:20]:
         if np.isnan(margins[k, j]):
             problems.append(f"transition {k + 1} vs {names[j]} cannot be decided (margin NaN)")

@@ -21,6 +21,7 @@ from typing import Any, Iterator
 
 import casadi as ca
 
+from ..errors import ValidationError
 from ..model.nlp_form import NLPProblem
 from ..model.ocp_form import OCPProblem, build_ocp
 from ..smoother.context import Outcome, SmoothingProblem
@@ -148,6 +149,10 @@ FATROP = FatropBackend()
 def run(problem: SmoothingProblem, **options: Any) -> Outcome:
     """fatrop from the problem's start; ``options`` as in :data:`METHOD`
     (the driver passes every one, defaults filled in)."""
+    if problem.model.data.budget is not None:
+        # the budget row sums over every stage; a stage form would carry the spent risk as a state
+        raise ValidationError("risk", "method 'fatrop' does not take an optimal risk allocation yet (its budget "
+                                      "row couples all stages); use allocation='uniform' or method 'ipopt'/'ccp'")
     return run_nlp(problem, FATROP, **options)
 
 

@@ -38,9 +38,20 @@ class ProblemData:
     hazard_names: tuple
     At: np.ndarray            # (N, d) target normals
     bt: np.ndarray            # (N,)
+    chi2_target: float = float("nan")   # containment level (the scenario's; NaN: chi2)
+    budget: float | None = None         # end-to-end risk budget: per-pair levels are variables
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.chi2_target):
+            object.__setattr__(self, "chi2_target", float(self.chi2))
 
     @classmethod
-    def from_scenario(cls, scenario: Scenario, K: int, alpha: float | None = None) -> "ProblemData":
+    def from_scenario(cls, scenario: Scenario, K: int, alpha: float | None = None, chi2: float | None = None,
+                      budget: float | None = None) -> "ProblemData":
+        """The scaled data of ``scenario`` at horizon K. ``chi2`` overrides the
+        collision level (the target keeps the scenario's); ``budget`` makes every
+        pair's level a decision variable under sum_kj g(tau_kj) <= budget
+        (:mod:`belief_nlp.allocation`; ``chi2`` is then the warm start's level)."""
         W = np.asarray(scenario.W, float)
         sigma = float(np.sqrt(np.max(np.linalg.eigvalsh(W))))
         hz = scenario.hazards
@@ -55,11 +66,12 @@ class ProblemData:
             b[j, : h.n_faces] = h.b / sigma
             mask[j, : h.n_faces] = True
         return cls(
-            sigma=sigma, chi2=float(scenario.chi2),
+            sigma=sigma, chi2=float(scenario.chi2 if chi2 is None else chi2),
             alpha=float(scenario.alpha if alpha is None else alpha), K=int(K), d=d,
             x0=scenario.x0 / sigma, P0=scenario.P0 / sigma**2, W=W / sigma**2,
             A=A, b=b, face_mask=mask, hazard_names=tuple(h.name for h in hz),
             At=scenario.target.A.copy(), bt=scenario.target.b / sigma,
+            chi2_target=float(scenario.chi2), budget=None if budget is None else float(budget),
         )
 
     @property
@@ -69,6 +81,18 @@ class ProblemData:
     @property
     def F(self) -> int:
         return int(self.A.shape[1])
+
+    @property
+    def n_pairs(self) -> int:
+        return self.K * self.J
+
+    @cached_property
+    def level_bounds(self) -> tuple[float, float]:
+        """(tau_lo, tau_hi) of the per-pair levels (:func:`belief_nlp.allocation.level_bounds`);
+        budget mode only."""
+        from ..allocation import level_bounds
+
+        return level_bounds(float(self.budget), self.n_pairs)
 
     @cached_property
     def Q1(self) -> np.ndarray:
@@ -84,13 +108,15 @@ class Layout:
     Q: np.ndarray     # (K+1, d, d) prior information (Q[0] unused, Q[1] fixed)
     S: np.ndarray     # (K+1, d, d) sensing information (S[0] = 0)
     lam: np.ndarray   # (K, J, F) certificates of transitions 1..K (padded faces 0)
+    tau: np.ndarray | None = None   # (K, J) per-pair levels (budget mode only)
 
     @property
     def Y(self) -> np.ndarray:
         return self.Q + self.S
 
     def copy(self) -> "Layout":
-        return Layout(self.x.copy(), self.Q.copy(), self.S.copy(), self.lam.copy())
+        return Layout(self.x.copy(), self.Q.copy(), self.S.copy(), self.lam.copy(),
+                      None if self.tau is None else self.tau.copy())
 
 
 def sym(M: np.ndarray) -> np.ndarray:

@@ -12,6 +12,12 @@ hazards j, target faces n:
          v^T P0 v <= 2 lam^T (A x_0 - b) - chi2                          start, k = 1 (C8)
          target_lmis(x_K, C_n, Y_K) >= 0                                         (C4)
 
+Under a risk budget (``D.budget``, :mod:`belief_nlp.allocation`) each pair's
+chi2 is its own variable tau_kj (it enters both ends' h2 linearly, so the DOC
+structure survives) and sum_kj g(tau_kj) <= budget joins the program, with g
+convexified at the point by a quadratic majorant (:func:`_tail_majorant`).
+The target keeps its own level ``D.chi2_target``.
+
 Its two nonconvex pieces are concave: alpha/2 log det Y_k in the objective and
 the bilinear h(lam, x) = 2 lam^T (A x - b) inside h2. The convexification at
 the current point p (CCP, section IV.A) keeps every convex term exactly and
@@ -78,6 +84,8 @@ class Blocks:
     Z: np.ndarray      # (K+1, d, d) lower triangular, k >= 2 (log det epigraph)
     u: np.ndarray      # (K+1, d) k >= 2
     n: int
+    tau: np.ndarray | None = None   # (K, J) per-pair levels (budget mode)
+    t: np.ndarray | None = None     # (K, J) their tail bounds, in units of the budget
 
 
 def _blocks(D: ProblemData) -> Blocks:
@@ -117,7 +125,9 @@ def _blocks(D: ProblemData) -> Blocks:
     for k in range(2, K + 1):
         Z[k, li, lj] = alloc(li.size)
         u[k] = alloc(d)
-    return Blocks(x, Q, S, lam, R_end, R_start, C, R0, Z, u, counter[0])
+    tau = alloc((K, J)) if D.budget is not None else None
+    t = alloc((K, J)) if D.budget is not None else None
+    return Blocks(x, Q, S, lam, R_end, R_start, C, R0, Z, u, counter[0], tau, t)
 
 
 def _pick(z: ca.SX, idx: np.ndarray) -> ca.SX:
@@ -146,17 +156,18 @@ def tangent(f: ca.Function, n_lin: int | None = None) -> ca.Function:
     return ca.Function(f"{f.name()}_tangent", at + to + data, [lin])
 
 
-def _pair_function(d: int, F: int, chi2: float) -> ca.Function:
-    """One end of one (transition, hazard) pair: the h1 LMI entries and the
+def _pair_function(d: int, F: int) -> ca.Function:
+    """One end of one (transition, hazard) pair at level ``chi2`` (a constant,
+    or the pair's variable level tau_kj): the h1 LMI entries and the
     convexified h2 as a rotated second-order cone (module doc)."""
-    lam, lt, R = ca.SX.sym("lam", F), ca.SX.sym("lam_t", F), ca.SX.sym("R")
+    lam, lt, R, chi2 = ca.SX.sym("lam", F), ca.SX.sym("lam_t", F), ca.SX.sym("R"), ca.SX.sym("chi2")
     x, xt, Y = ca.SX.sym("x", d), ca.SX.sym("x_t", d), ca.SX.sym("Y", d, d)
     A, b, r = ca.SX.sym("A", F, d), ca.SX.sym("b", F), ca.SX.sym("sqrt_rho")
     bil = tangent(ca.Function("bilinear", [lam, x, A, b], [terms.bilinear(lam, x, A, b)]), 2)
     h2_lin = R + chi2 - bil(lt, xt, lam, x, A, b)          # h2 with h replaced by its tangent
     dv = ca.mtimes(A.T, lam - lt)
     h1 = terms.h1_lmi(R, ca.mtimes(A.T, lam), Y)
-    return ca.Function("collision_pair", [lam, lt, R, x, xt, Y, A, b, r],
+    return ca.Function("collision_pair", [lam, lt, R, x, xt, Y, A, b, r, chi2],
                        [ca.vec(h1), _rsoc(-h2_lin, r * dv - (x - xt) / r)])
 
 
@@ -174,6 +185,42 @@ def _rsoc(w: ca.SX, y: ca.SX) -> ca.SX:
     return ca.vertcat((w + 1) / s2, y, (w - 1) / s2)
 
 
+def _tail_majorant() -> ca.Function:
+    """(tau~, tau) -> (g(tau~) + g'(tau~) dtau, sqrt(M) dtau, lower) with dtau = tau - tau~,
+    g(tau) = Phi_bar(sqrt(tau)) (CasADi's derivatives), M = g''(lower) and
+    lower = tau~ / 2: on tau >= lower, g(tau) <= lin + M/2 dtau^2 (descent
+    lemma; g'' decreases in tau), tight at tau~ in value and slope."""
+    at, to = ca.SX.sym("tau_t"), ca.SX.sym("tau")
+    g = ca.Function("tail", [to], [0.5 * (1 - ca.erf(ca.sqrt(to / 2)))])
+    lin = tangent(g)(at, to)
+    lower = at / 2
+    curv = ca.hessian(g(to), to)[0]
+    M = ca.substitute(curv, to, lower)
+    return ca.Function("tail_majorant", [at, to], [lin, ca.sqrt(M) * (to - at), lower])
+
+
+def _budget_families(D: ProblemData, B: Blocks, z: ca.SX, tau_t: ca.SX) -> list[ConeFamily]:
+    """sum_kj g(tau_kj) <= budget, g convexified at the point's levels tau~ by a
+    quadratic majorant tight there (:func:`_tail_majorant`), in units of the
+    budget: t_kj >= (lin_kj + M_kj/2 dtau_kj^2) / budget (a rotated cone),
+    sum t_kj <= 1, max(tau_lo, tau~/2) <= tau_kj <= tau_hi. Every answer's
+    levels keep sum g <= budget; the step stays a DPP cone program. (The
+    piecewise-linear bound through fixed knots, ~10 nearly parallel rows per
+    pair, made Clarabel stall: docs/numerics.md, "Risk allocation".)"""
+    tau_lo, tau_hi = D.level_bounds
+    tau = _pick(z, B.tau.ravel()[:, None])
+    t = _pick(z, B.t.ravel()[:, None])
+    n = int(tau.numel())
+    lin, y, lower = _tail_majorant().map(n)(tau_t.T, tau.T)
+    w = t.T - lin / D.budget
+    y = y / np.sqrt(D.budget)
+    cones = ca.vertcat((w + 1) / np.sqrt(2), y, (w - 1) / np.sqrt(2))      # 1/2 y^2 <= w per pair (columns)
+    return [ConeFamily("budget_tail", "soc", 3, n, ca.vec(cones)),
+            ConeFamily("budget_levels", "nonneg", 1, 2 * n,
+                       ca.vertcat(tau - ca.fmax(tau_lo, lower.T), tau_hi - tau)),
+            ConeFamily("budget_total", "nonneg", 1, 1, 1 - ca.sum1(t))]
+
+
 @dataclass
 class StepLayout:
     """Where the model's quantities sit in z and p: numbers only (picklable),
@@ -185,8 +232,11 @@ class StepLayout:
     # --------------------------------------------------------- numeric maps
     def params(self, point: Layout, rho_start: np.ndarray, rho_end: np.ndarray) -> np.ndarray:
         """Parameter vector of ``point`` with split weights rho (K, J) at both ends."""
-        return np.concatenate([point.x.ravel(), point.Q.ravel(), point.S.ravel(), point.lam.ravel(),
-                               np.asarray(rho_start, float).ravel(), np.asarray(rho_end, float).ravel()])
+        parts = [point.x.ravel(), point.Q.ravel(), point.S.ravel(), point.lam.ravel(),
+                 np.asarray(rho_start, float).ravel(), np.asarray(rho_end, float).ravel()]
+        if self.blocks.tau is not None:
+            parts.append(np.asarray(point.tau, float).ravel())
+        return np.concatenate(parts)
 
     def point_vector(self, point: Layout) -> np.ndarray:
         """z of ``point`` itself (dx = 0) with every auxiliary at its tightest
@@ -215,6 +265,11 @@ class StepLayout:
             Zk = L * np.diag(L)[None, :]
             out[B.Z[k, li, lj]] = Zk[li, lj]
             out[B.u[k]] = np.log(np.diag(Zk))
+        if B.tau is not None:
+            from ..allocation import tail
+
+            out[B.tau] = point.tau
+            out[B.t] = tail(point.tau) / D.budget         # the majorant is tight at the point
         return out
 
     def extract(self, zv: np.ndarray, point: Layout) -> Layout:
@@ -234,7 +289,8 @@ class StepLayout:
         w, V = np.linalg.eigh(S[1:])
         S[1:] = (V * np.maximum(w, 0.0)[:, None, :]) @ np.swapaxes(V, -1, -2)
         lam = np.where(B.lam >= 0, zv[np.maximum(B.lam, 0)], 0.0)
-        return Layout(x, Q, S, np.maximum(lam, 0.0))
+        tau = None if B.tau is None else zv[B.tau].copy()
+        return Layout(x, Q, S, np.maximum(lam, 0.0), tau)
 
 
 
@@ -268,9 +324,14 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
     N = D.At.shape[0]
     B = _blocks(D)
     chi2 = D.chi2 * (1.0 + chi2_margin)
+    chi2_t = D.chi2_target * (1.0 + chi2_margin)
     z = ca.SX.sym("z", B.n)
+    # each pair's level: the fixed chi2, or its variable tau_kj (budget mode), with the margin
+    Lev = (_pick(z, B.tau) * (1.0 + chi2_margin) if B.tau is not None else ca.DM.ones(K, J) * chi2)
     # parameters: the point (x, Q, S, lam) and the split weights
     sizes = [(K + 1) * d, (K + 1) * d * d, (K + 1) * d * d, K * J * F, K * J, K * J]
+    if B.tau is not None:
+        sizes.append(K * J)                           # the point's levels tau~ (budget mode)
     p = ca.SX.sym("p", int(sum(sizes)))
     parts = ca.vertsplit(p, list(np.concatenate([[0], np.cumsum(sizes)]).astype(int)))
     xt = ca.reshape(parts[0], d, K + 1)               # column k = x~_k (row-major ravel -> transposed)
@@ -315,7 +376,7 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
 
     # collision constraints: h1 exactly, h2 with the bilinear term convexified;
     # one pair function mapped over every (transition, hazard) end
-    pair = _pair_function(d, F, chi2)
+    pair = _pair_function(d, F)
     for name, ks, end in (("end", np.arange(1, K + 1), True), ("start", np.arange(2, K + 1), False)):
         if ks.size == 0:
             continue
@@ -335,7 +396,8 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
         A = ca.DM(np.concatenate(list(D.A[jj]), axis=1))
         b = ca.DM(D.b[jj].T)
         r = ca.sqrt((rho_e if end else rho_s)[((kk - 1) * J + jj).tolist()]).T
-        h1, h2 = pair.map(nb)(lam, lt, R, x, xt[:, kx.tolist()], Yv + ca.DM(Yc), A, b, r)
+        lev = ca.vertcat(*[Lev[int(k) - 1, int(j)] for k, j in zip(kk, jj)]).T
+        h1, h2 = pair.map(nb)(lam, lt, R, x, xt[:, kx.tolist()], Yv + ca.DM(Yc), A, b, r, lev)
         fam.append(ConeFamily(f"h1_{name}", "psd", d + 1, nb, ca.vec(h1)))
         fam.append(ConeFamily(f"h2_{name}", "soc", d + 2, nb, ca.vec(h2)))
     # k = 1, start end (C8): v^T P0 v <= 2 lam^T (A x0 - b) - chi2, exactly (x0 fixed),
@@ -349,15 +411,17 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
         A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
         lam = Lam[0][j]
         R0 = z[int(B.R0[j])]
-        h2_first.append(terms.bilinear(lam, X[0], A, b) - chi2 - eps0**2 * R0)
+        h2_first.append(terms.bilinear(lam, X[0], A, b) - Lev[0, j] - eps0**2 * R0)
         h1_first.append(terms.h1_lmi(R0, ca.mtimes(ca.DM(L0 / eps0).T, ca.mtimes(A.T, lam)), ca.DM.eye(d)))
     add("start_h2", "nonneg", 1, h2_first)
     add("start_h1", "psd", d + 1, h1_first)
     t1, t2 = [], []
     for n in range(N):
-        m1, m2 = terms.target_lmis(X[K], z[int(B.C[n])], Y[K], ca.DM(D.At[n]), D.bt[n], chi2)
+        m1, m2 = terms.target_lmis(X[K], z[int(B.C[n])], Y[K], ca.DM(D.At[n]), D.bt[n], chi2_t)
         t1.append(m1)
         t2.append(m2)
     add("target_face", "psd", 2, t1)
     add("target_shape", "psd", d + 1, t2)
+    if B.tau is not None:
+        fam.extend(_budget_families(D, B, z, parts[6]))
     return ConvexForm(StepLayout(D, B), z, p, objective, fam, chi2)

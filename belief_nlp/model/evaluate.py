@@ -29,13 +29,26 @@ def _hcat(M: np.ndarray) -> np.ndarray:
 class BeliefModel:
     """The model of the smoothing problem for one scenario, horizon and alpha.
 
+    With ``risk`` (a :class:`belief_nlp.allocation.RiskBudget`) the collision
+    level is the budget's: uniform, every pair at g^-1(Delta / (K J)); optimal,
+    each pair's level a variable under the budget (``data.budget``), with the
+    uniform level at 90 % of Delta as the warm start's.
+
     Its CasADi functions are built once from :mod:`.terms`; the methods below
     evaluate them on a :class:`Layout` (scaled units).
     """
 
-    def __init__(self, scenario: Scenario, K: int, alpha: float | None = None):
+    def __init__(self, scenario: Scenario, K: int, alpha: float | None = None, risk=None):
         self.scenario = scenario
-        self.data = ProblemData.from_scenario(scenario, K, alpha)
+        self.risk_budget = risk               # a RiskBudget (belief_nlp.allocation) or None
+        chi2 = budget = None
+        if risk is not None:
+            n_pairs = int(K) * len(scenario.hazards)
+            if risk.allocation == "uniform":
+                chi2 = risk.uniform_level(n_pairs)
+            else:
+                chi2, budget = risk.warm_level(n_pairs), risk.budget
+        self.data = ProblemData.from_scenario(scenario, K, alpha, chi2=chi2, budget=budget)
         D = self.data
         d, F = D.d, D.F
         x, xp = ca.SX.sym("x", d), ca.SX.sym("x_prev", d)
@@ -50,7 +63,7 @@ class BeliefModel:
         self.f_margin_cov = ca.Function("margin_cov", [x, P, lam, A, b],
                                         [terms.collision_margin_cov(x, P, lam, A, b, D.chi2)],
                                         ["x", "P", "lam", "A", "b"], ["margin"])
-        self.f_target = ca.Function("target_margin", [x, Y, a, bt], [terms.target_margin(x, Y, a, bt, D.chi2)],
+        self.f_target = ca.Function("target_margin", [x, Y, a, bt], [terms.target_margin(x, Y, a, bt, D.chi2_target)],
                                     ["x", "Y", "a", "b"], ["margin"])
         self.f_kalman = ca.Function("kalman_residual", [Q, Y], [terms.kalman_residual(Q, Y, ca.DM(D.W))],
                                     ["Q", "Y_prev"], ["residual"])
@@ -93,6 +106,20 @@ class BeliefModel:
         start[1:] = self._pairs(z.x[1:-1], z.Y[1:-1], z.lam[1:], self.f_margin_inv)
         start[0] = self._pairs(z.x[:1], D.P0[None], z.lam[:1], self.f_margin_cov)[0]
         return start, end
+
+    def clearances(self, z: Layout) -> np.ndarray:
+        """(K, J) certified squared Mahalanobis clearance of every pair: the
+        smaller Theorem-1 certificate value of its two ends (a rigorous lower
+        bound over the whole transition)."""
+        start, end = self.transition_margins(z)
+        return np.minimum(start, end) + self.data.chi2
+
+    def risk_sum(self, z: Layout) -> float:
+        """sum_kj g(clearance_kj): the certified step-time collision bound of
+        ``z`` by its own certificates (:mod:`belief_nlp.allocation`)."""
+        from ..allocation import tail
+
+        return float(np.sum(tail(self.clearances(z))))
 
     def target_margins(self, z: Layout) -> np.ndarray:
         """Containment margin of the final posterior per target face (scaled length)."""

@@ -17,7 +17,11 @@ lam_kj >= 0 per transition and hazard (Theorem 1, C5), real faces only.
          collision_margin_inv(x_k, Q_k, lam_kj)        >= m        every end
          target_margin(x_K, Y_K, a_n, b_n)             >= m'       (C4)
 
-with m = margin chi2 and m' = margin (scaled length). Why these choices and
+with m = margin chi2 and m' = margin (scaled length). Under a risk budget
+(``data.budget``, :mod:`belief_nlp.allocation`) each pair's level is a
+variable tau_kj in [tau_lo, tau_hi]: its rows ask for tau_kj (1 + margin)
+instead of chi2 + m, and one more row keeps sum_kj g(tau_kj) <= budget with
+g(tau) = Phi_bar(sqrt(tau)) exactly. Why these choices and
 the measured alternatives ("minors", "eliminated"): docs/numerics.md, "IPOPT".
 """
 
@@ -163,6 +167,8 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
     Sv = ca.SX.sym("s", t, K)
     Mv = ca.SX.sym("m", t, K - 1) if lift_q else ca.SX(t, 0)
     Lam = ca.SX.sym("lam", n_lam, K)
+    budget = D.budget is not None
+    Tau = ca.SX.sym("tau", J, K) if budget else ca.SX(J, 0)       # column k-1 = the levels of transition k
     W = ca.DM(D.W)
     xs = [ca.DM(D.x0)] + [X[:, k] for k in range(K)]
 
@@ -205,24 +211,30 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
         for j in range(J):
             lam = ca.vertcat(Lam[offs[j]:offs[j + 1], k - 1], ca.SX.zeros(F - nf[j]))
             A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
+            # the model's margins are at level chi2; a variable level moves them by chi2 - tau (1 + margin)
+            shift = D.chi2 - (1 + margin) * Tau[j, k - 1] if budget else 0
             if k == 1:
-                g_col.append(model.f_margin_cov(xs[0], P0, lam, A, b))
+                g_col.append(model.f_margin_cov(xs[0], P0, lam, A, b) + shift)
             else:
-                g_col.append(model.f_margin_inv(xs[k - 1], Y[k - 1], lam, A, b))
-            g_col.append(model.f_margin_inv(xs[k], Q[k], lam, A, b))
+                g_col.append(model.f_margin_inv(xs[k - 1], Y[k - 1], lam, A, b) + shift)
+            g_col.append(model.f_margin_inv(xs[k], Q[k], lam, A, b) + shift)
     g_tgt = [model.f_target(xs[K], Y[K], ca.DM(D.At[n]), D.bt[n]) for n in range(D.At.shape[0])]
 
     Lam0 = ca.SX.sym("lam0", n_lam, K)
     reg = 0.5 * regularisation * ca.sumsqr(Lam - Lam0)
     p = ca.vec(Lam0)
 
-    z = ca.veccat(X, Sv, Mv, Lam)
+    z = ca.veccat(X, Sv, Mv, Lam, Tau)
     g_col_v = ca.vertcat(*g_col)
     g_tgt_v = ca.vertcat(*g_tgt)
-    g = ca.vertcat(g_col_v, g_tgt_v, *g_kal, *g_psd)
+    # the budget in its own units: sum g(tau) / budget <= 1, g(tau) = Phi_bar(sqrt(tau)) exactly
+    g_bud = [ca.sum1(0.5 * (1 - ca.erf(ca.sqrt(ca.vec(Tau) / 2)))) / D.budget] if budget else []
+    g = ca.vertcat(g_col_v, g_tgt_v, *g_kal, *g_psd, *g_bud)
     n_col, n_tgt, n_kal, n_psd = len(g_col), len(g_tgt), t * len(g_kal), len(g_psd)
-    lbg = np.concatenate([np.full(n_col, margin * D.chi2), np.full(n_tgt, margin), np.zeros(n_kal), np.zeros(n_psd)])
-    ubg = np.concatenate([np.full(n_col + n_tgt, np.inf), np.zeros(n_kal), np.full(n_psd, np.inf)])
+    lbg = np.concatenate([np.full(n_col, 0.0 if budget else margin * D.chi2), np.full(n_tgt, margin),
+                          np.zeros(n_kal), np.zeros(n_psd), np.full(len(g_bud), -np.inf)])
+    ubg = np.concatenate([np.full(n_col + n_tgt, np.inf), np.zeros(n_kal), np.full(n_psd, np.inf),
+                          np.ones(len(g_bud))])
 
     nX, nS, nM = d * K, t * K, t * (K - 1) if lift_q else 0
     lbz = np.full(z.shape[0], -np.inf)
@@ -235,8 +247,12 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
         s_lb = np.full((t, K), -np.inf)
         s_lb[diag_pos, :] = np.log(floor)
         lbz[nX:nX + nS] = s_lb.ravel(order="F")
-    lbz[nX + nS + nM:] = 0.0                           # lam >= 0
-
+    nL = n_lam * K
+    lbz[nX + nS + nM:nX + nS + nM + nL] = 0.0          # lam >= 0
+    if budget:
+        tau_lo, tau_hi = D.level_bounds
+        lbz[nX + nS + nM + nL:] = tau_lo
+        ubz[nX + nS + nM + nL:] = tau_hi
     parts = ca.Function("parts", [z, p], [control, information, reg], ["z", "p"],
                         ["control", "information", "regulariser"])
     margins = ca.Function("margins", [z], [g_col_v, g_tgt_v], ["z"], ["collision", "target"])
@@ -257,6 +273,8 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
                            for k in range(2, K + 1)], 1) if K > 1 else np.zeros((t, 0))
             parts_.append(Mp.ravel(order="F"))
         parts_.append(anchor(lay))
+        if budget:
+            parts_.append(np.asarray(lay.tau, float).T.ravel(order="F"))
         return np.concatenate(parts_)
 
     def anchor(lay: Layout) -> np.ndarray:
@@ -288,11 +306,12 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
                 for p, (i, j) in enumerate(tri):
                     M[i, j] = Mp[k - 2, p]
                 Qm[k] = M @ M.T
-        lam_c = zv[nX + nS + nM:].reshape(K, n_lam)
+        lam_c = zv[nX + nS + nM:nX + nS + nM + n_lam * K].reshape(K, n_lam)
         lam = np.zeros((K, J, F))
         for j in range(J):
             lam[:, j, :nf[j]] = lam_c[:, offs[j]:offs[j + 1]]
-        lay = Layout(x, Qm, S, lam)
+        tau = zv[nX + nS + nM + n_lam * K:].reshape(K, J).copy() if budget else None
+        lay = Layout(x, Qm, S, lam, tau)
         if not lift_q:
             lay = model.tighten(lay)
         return lay
@@ -300,5 +319,6 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
     return NLPProblem(formulation, z, p, control + D.alpha * information + reg, g, lbz, ubz, lbg, ubg, parts,
                       margins, pack, unpack, anchor, n_col,
                       info={"n_variables": int(z.shape[0]), "n_constraints": int(g.shape[0]),
-                            "n_kalman": n_kal, "n_psd": n_psd, "n_target": n_tgt, "sensing_offset": nX,
+                            "n_kalman": n_kal, "n_psd": n_psd, "n_target": n_tgt, "n_budget": len(g_bud),
+                            "sensing_offset": nX,
                             "tri": tri, "d": d, "K": K})

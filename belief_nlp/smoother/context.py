@@ -192,6 +192,8 @@ class SmoothingProblem:
         best available; the others are kept (they are well scaled for the
         next convex step)."""
         D = self.model.data
+        if D.budget is not None:
+            return self._check_budget(z)
         accept = self.policy.accept * D.chi2
         try:
             if not (np.all(np.isfinite(z.x)) and np.all(np.isfinite(z.S)) and np.all(np.isfinite(z.Q))
@@ -217,6 +219,55 @@ class SmoothingProblem:
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             return Check(z, float("nan"), float("nan"), accept=accept)
         return Check(out, lower if np.isfinite(lower) else float("nan"), target, upper, accept,
+                     self.policy.target)
+
+    def _check_budget(self, z: Layout) -> Check:
+        """:meth:`check` under a risk budget (:mod:`belief_nlp.allocation`): the
+        proof is the Boole sum of g over the pairs' certified clearances, and
+        ``margin`` = chi2 (1 - sum / budget) (>= accept: within the budget).
+        Where a pair's own certificate proves less than the exact minimum
+        allows, the exact minimiser's certificate (scaled to stay interior)
+        replaces it. The point's levels tau are kept when it has them (a
+        solver's answer), else set to its clearances (capped at tau_hi)."""
+        from ..allocation import tail
+
+        D, model = self.model.data, self.model
+        accept = self.policy.accept * D.chi2
+        tau_lo, tau_hi = D.level_bounds
+        try:
+            if not (np.all(np.isfinite(z.x)) and np.all(np.isfinite(z.S)) and np.all(np.isfinite(z.Q))
+                    and np.all(np.isfinite(z.lam))):
+                raise ValueError("non-finite point")
+            out = z.copy()
+            out.lam = np.maximum(out.lam, 0.0)
+            P = model.covariances(out)
+            W = np.broadcast_to(D.W, P[1:].shape)
+            tm = transition_minimiser(out.x[:-1], P[:-1], out.x[1:], W, self.hazards_scaled)
+            clear = model.clearances(out)
+            # a pair beyond tau_hi carries no risk to speak of: proving more would only inflate its
+            # certificate (lam* grows like distance / variance) and the next step's scaling with it
+            weak = ~(clear >= np.minimum(0.99 * tm.dist2, tau_hi))
+            if np.any(weak):
+                level = np.maximum(np.minimum(0.999 * tm.dist2, 1.05 * tau_hi), 1e-9)
+                lam = certificates(self.scenario, model.to_path(out), self.hazards, chi2=level) * D.sigma
+                trial = out.copy()
+                trial.lam = np.where(weak[..., None], lam, out.lam)
+                better = model.clearances(trial) > clear
+                out.lam = np.where(better[..., None], trial.lam, out.lam)
+                clear = model.clearances(out)
+            total = float(np.sum(tail(clear)))
+            # levels: the point's own (a solver's) where proven, else its clearances; within [tau_lo, tau_hi]
+            proven = clear * (1 - 1e-9)                  # a level its certificate proves despite rounding
+            tau = np.minimum(clear / (1 + 1e-6), tau_hi) if out.tau is None else np.minimum(out.tau, proven)
+            if not np.sum(tail(tau)) <= D.budget:
+                tau = np.minimum(proven, tau_hi)
+            out.tau = np.clip(tau, tau_lo, tau_hi)
+            margin = D.chi2 * (1.0 - total / D.budget)
+            upper = D.chi2 * (1.0 - float(np.sum(tail(tm.dist2))) / D.budget)
+            target = float(np.min(model.target_margins(out)))
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+            return Check(z, float("nan"), float("nan"), accept=accept)
+        return Check(out, margin if np.isfinite(margin) else float("nan"), target, upper, accept,
                      self.policy.target)
 
     def repair(self, chk: Check) -> Check | None:

@@ -30,10 +30,12 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..allocation import RiskAllocation, RiskBudget
 from ..errors import InfeasibleStartError, ValidationError
 from ..inputs import as_path, as_scenario
 from ..model import BeliefModel, Layout
 from ..path import BeliefPath
+from ..risk import path_risk
 from ..scenario import Scenario
 from .context import Outcome, SmoothingProblem
 from .registry import DEFAULT_METHOD, Method, resolve_method
@@ -92,7 +94,8 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
            max_iter: int | None = None, tol: float = 1e-4, solver: str | None = None, alpha: float | None = None, *,
            time_limit: float | None = None, solver_options: dict | None = None, keep_iterates: bool = False,
            progress: bool = False, sensing: str = "minimal", callback: Callable | None = None,
-           verbose: bool = False, k_fallback: bool = True, **options: Any) -> SmoothResult:
+           verbose: bool = False, k_fallback: bool = True, risk: float | RiskBudget | None = None,
+           allocation: str = "optimal", risk_kind: str = "steps", **options: Any) -> SmoothResult:
     """Smooth a feasible belief path toward a local optimum of the paper's problem.
 
     Parameters
@@ -148,6 +151,20 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
         noise on every sub-step can make a sub-transition next to an
         obstacle unsafe), fall back to one step per path edge and say so in
         ``stats["warm_start"]`` and the message (default); False raises instead.
+    risk : float or RiskBudget, optional
+        An end-to-end collision-probability budget Delta in (0, 0.5) for the
+        whole path, in place of the scenario's fixed collision level (the
+        target keeps the scenario's confidence): the certified probability of
+        being inside some hazard at the K + 1 step times stays <= Delta
+        (:mod:`belief_nlp.allocation`). None: ``scenario.risk`` when the
+        scenario sets one, else the paper's fixed level.
+    allocation : {"optimal", "uniform"}, optional
+        With ``risk``: per-pair levels chosen by the smoother (decision
+        variables of the model; default) or Delta split equally over the K J
+        transition-hazard pairs.
+    risk_kind : {"steps"}, optional
+        What the budget bounds (only the step-time bound is budgeted; the
+        continuous-time bound is reported in ``verification``).
     **options
         The method's own options (``get_method(name).options`` documents
         them). CCP-only options such as ``constraints`` or ``hook`` need
@@ -158,6 +175,8 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
     SmoothResult
         Its path is always exactly safe and independently verified, never
         costlier than the warm start; ``success`` when the method converged.
+        With ``risk``, ``result.risk`` holds the allocation and the certified
+        bound.
 
     Raises
     ------
@@ -171,13 +190,15 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
         with _logging_to_stderr():
             return smooth(scenario, path, method, K, max_iter, tol, solver, alpha, time_limit=time_limit,
                           solver_options=solver_options, keep_iterates=keep_iterates, progress=progress,
-                          sensing=sensing, callback=callback, verbose=False, k_fallback=k_fallback, **options)
+                          sensing=sensing, callback=callback, verbose=False, k_fallback=k_fallback, risk=risk,
+                          allocation=allocation, risk_kind=risk_kind, **options)
     t0 = time.perf_counter()
     scenario = as_scenario(scenario)
     path = as_path(path)
     m = resolve_method(method)
     _check_args(max_iter, tol, alpha, time_limit, K, solver_options, callback)
     opts = m.validate(options)
+    budget = _budget(scenario, risk, allocation, risk_kind)
     if solver is not None and not isinstance(solver, str):
         raise ValidationError("solver", f"must be a solver name, got {type(solver).__name__}")
     solver_name = solver if solver is not None else m.default_solver
@@ -191,8 +212,8 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
         warm = path
         ws_info = {"K": warm.K, "requested_K": K, "fallback": False}
     else:
-        warm, ws_info = _warm_start(scenario, path, K, sensing, k_fallback)
-    model = BeliefModel(scenario, warm.K, alpha)
+        warm, ws_info = _warm_start(scenario, path, K, sensing, k_fallback, budget)
+    model = BeliefModel(scenario, warm.K, alpha, risk=budget)
     problem = SmoothingProblem(scenario, warm, model, max_iter=m.max_iter if max_iter is None else int(max_iter),
                                tol=tol, time_limit=time_limit, t0=t0, solver=solver_name,
                                solver_options=solver_options or {}, progress=progress,
@@ -209,18 +230,68 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
     return _finish(problem, outcome, m, t_setup)
 
 
+def _budget(scenario: Scenario, risk: Any, allocation: Any, kind: Any) -> RiskBudget | None:
+    """The run's risk budget: ``risk`` (a number or a RiskBudget), else the scenario's."""
+    if isinstance(risk, RiskBudget):
+        return risk
+    if risk is None:
+        risk = getattr(scenario, "risk", None)
+    if risk is None:
+        if not (isinstance(allocation, str) and allocation.lower() == "optimal") or kind != "steps":
+            RiskBudget(0.05, allocation, kind)               # a bad value still gets its own error
+            raise ValidationError("allocation", "applies only with a risk budget (give risk=...)")
+        return None
+    return RiskBudget(risk, allocation, kind)
+
+
+def _level(budget: RiskBudget, n_pairs: int) -> float:
+    """The fixed collision level of the run: the uniform allocation's, or the
+    optimal allocation's warm start level (:class:`RiskBudget`)."""
+    return budget.uniform_level(n_pairs) if budget.allocation == "uniform" else budget.warm_level(n_pairs)
+
+
 def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str,
-                fallback: bool) -> tuple[WarmStart, dict]:
+                fallback: bool, budget: RiskBudget | None = None) -> tuple[WarmStart, dict]:
     """The warm start at K, or -- when K is infeasible and fallback allowed -- at
-    one step per path edge; with what happened."""
+    one step per path edge; with what happened. Under a risk budget the
+    collisions are cleared at the budget's level for that K."""
+    J = len(scenario.hazards)
+
+    def build(k: int | None) -> WarmStart:
+        if budget is None:
+            return warm_start(scenario, path, K=k, sensing=sensing)
+        n_pairs = (path.K if k is None else k) * J
+        if budget.allocation == "uniform":
+            levels = [budget.uniform_level(n_pairs)]
+        else:   # the uniform level at 90 % of the budget, then lower ones while the certified sum fits
+            top = budget.warm_level(n_pairs)
+            levels = sorted({top * 0.9**i for i in range(13)} | ({scenario.chi2} if scenario.chi2 < top else set()),
+                            reverse=True)
+        err, best = None, float("inf")
+        for chi2 in levels:
+            try:
+                warm = warm_start(scenario, path, K=k, sensing=sensing, chi2=chi2)
+            except InfeasibleStartError as exc:
+                err = err or exc
+                continue
+            bound = path_risk(scenario, warm.path, warm.lam).step_time
+            if budget.allocation == "uniform" or bound <= 0.97 * budget.budget:
+                return warm
+            best = min(best, bound)
+        why = (f"the best warm start's certified bound is {best:.3g}" if np.isfinite(best)
+               else f"every pair at level {levels[-1]:.4g}: {err}")
+        raise InfeasibleStartError(f"no warm start meets the risk budget {budget.budget:g} ({why}; plan with "
+                                   f"risk={budget.budget:g} or give a larger budget)",
+                                   getattr(err, "transition", None), getattr(err, "obstacle", None))
+
     try:
-        warm = warm_start(scenario, path, K=K, sensing=sensing)
+        warm = build(K)
         return warm, {"K": warm.K, "requested_K": K, "fallback": False}
     except InfeasibleStartError as exc:
         if not fallback or K is None or K == path.K:
             raise
         log.warning("no feasible warm start at K = %d (%s); using one step per path edge (K = %d)", K, exc, path.K)
-        warm = warm_start(scenario, path, K=None, sensing=sensing)
+        warm = build(None)
         return warm, {"K": warm.K, "requested_K": K, "fallback": True, "reason": str(exc)}
 
 
@@ -248,7 +319,7 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
             continue
         if cost > problem.cost0 * (1 + 1e-12) + 1e-15:
             break
-        rep = verify(sc, model.to_path(z), certificates=z.lam / model.data.sigma)
+        rep = verify(sc, model.to_path(z), certificates=z.lam / model.data.sigma, **_risk_args(model, z))
         if rep.safe:
             answer, origin, report = z, where, rep
             break
@@ -262,7 +333,7 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
     path = model.to_path(answer, meta=meta)
     lam_si = answer.lam / model.data.sigma
     if report is None:                    # the warm start: verified here (the candidates were above)
-        report = verify(sc, path, certificates=lam_si)
+        report = verify(sc, path, certificates=lam_si, **_risk_args(model, answer))
     c, ctrl, info = model.cost(answer)
     iterates = None
     if problem.keep_iterates:
@@ -275,4 +346,27 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
         timings={"setup": t_setup, "solver": float(sum(h.solve_time for h in hist)),
                  "total": time.perf_counter() - problem.t0},
         verification=report.to_dict(), initial_cost=problem.cost0, iterates=iterates, stats=dict(outcome.stats),
-        certificates=lam_si)
+        certificates=lam_si, risk=_allocation(problem, answer, report))
+
+
+def _risk_args(model: BeliefModel, z: Layout) -> dict:
+    """verify()'s collision levels and budget for a point of ``model``."""
+    D = model.data
+    budget = model.risk_budget
+    if budget is None:
+        return {}
+    return {"levels": z.tau if D.budget is not None and z.tau is not None else D.chi2, "budget": budget.budget}
+
+
+def _allocation(problem: SmoothingProblem, z: Layout, report) -> RiskAllocation | None:
+    """The returned path's :class:`RiskAllocation` (None without a budget)."""
+    from ..allocation import tail
+
+    model = problem.model
+    budget = model.risk_budget
+    if budget is None:
+        return None
+    D = model.data
+    levels = np.array(z.tau if D.budget is not None and z.tau is not None else np.full((D.K, D.J), D.chi2), float)
+    return RiskAllocation(budget.budget, tail(levels), levels, float(report.risk_bound), budget.allocation,
+                          budget.kind, tuple(h.name for h in problem.scenario.hazards))

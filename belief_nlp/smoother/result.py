@@ -11,6 +11,7 @@ import numpy as np
 
 from .._limits import load_json
 from ..errors import ScenarioFileError, ValidationError
+from ..allocation import RiskAllocation
 from ..path import BeliefPath
 
 __all__ = ["IterationRecord", "SmoothResult", "STATUSES"]
@@ -142,6 +143,10 @@ class SmoothResult:
         (K, J, F) Theorem-1 certificates of the returned path in 1/m
         (hazards as ``scenario.hazards``, faces padded with 0): the proof
         :func:`belief_nlp.verify` checks in closed form (docs/safety.md).
+    risk : RiskAllocation or None
+        With a risk budget (``smooth(..., risk=Delta)``): the budget, each
+        transition-hazard pair's level and allotted risk (K, J), and the
+        certified end-to-end bound of the returned path; None otherwise.
     """
 
     path: BeliefPath
@@ -162,6 +167,7 @@ class SmoothResult:
     iterates: list[BeliefPath] | None = field(default=None, repr=False)
     stats: dict = field(default_factory=dict)
     certificates: np.ndarray | None = field(default=None, repr=False)
+    risk: RiskAllocation | None = field(default=None, repr=False)
 
     @property
     def x(self) -> np.ndarray:
@@ -187,7 +193,9 @@ class SmoothResult:
             Every field; ``path`` as :meth:`BeliefPath.to_dict`, ``history``
             as a list of dicts, ``certificates`` as nested lists (or None).
         """
-        out = {k: v for k, v in asdict(self).items() if k not in ("path", "history", "iterates", "certificates")}
+        out = {k: v for k, v in asdict(self).items()
+               if k not in ("path", "history", "iterates", "certificates", "risk")}
+        out["risk"] = None if self.risk is None else self.risk.to_dict()
         out["certificates"] = None if self.certificates is None else np.asarray(self.certificates).tolist()
         out["path"] = self.path.to_dict()
         out["history"] = [asdict(h) for h in self.history]
@@ -217,6 +225,8 @@ class SmoothResult:
             data["history"] = [IterationRecord(**h) for h in data["history"]]
             if data.get("certificates") is not None:
                 data["certificates"] = np.asarray(data["certificates"], dtype=float)
+            if data.get("risk") is not None:
+                data["risk"] = RiskAllocation.from_dict(data["risk"])
             return cls(**data)
         except (TypeError, KeyError, AttributeError) as exc:
             raise ValidationError("result", f"malformed smoothing result: {str(exc)[:200]}") from None
@@ -242,6 +252,8 @@ class SmoothResult:
         if v.get("risk_step_time") is not None:
             lines.append(f"  collision probability <= {v['risk_step_time']:.3g} at the step times "
                          f"(certified; Boole over transition-hazard pairs, bn.verify(...).risk)")
+        if self.risk is not None:
+            lines.append(f"  {self.risk.summary()}")
         return "\n".join(lines)
 
     def __repr__(self) -> str:

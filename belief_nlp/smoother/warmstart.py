@@ -101,7 +101,8 @@ def _split(x: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return np.array(pts)
 
 
-def allocate_steps(scenario: Scenario, x: np.ndarray, K: int, hazards: PolytopeSet | None = None) -> np.ndarray | None:
+def allocate_steps(scenario: Scenario, x: np.ndarray, K: int, hazards: PolytopeSet | None = None,
+                   chi2: float | None = None) -> np.ndarray | None:
     """Steps per edge (summing to K) such that every sub-transition can be made
     clear, or None when no such allocation is found.
 
@@ -116,7 +117,7 @@ def allocate_steps(scenario: Scenario, x: np.ndarray, K: int, hazards: PolytopeS
     x = np.asarray(x, float)
     E = x.shape[0] - 1
     W = scenario.W
-    thr = scenario.chi2 * (1 + _START_MARGIN)
+    thr = (scenario.chi2 if chi2 is None else chi2) * (1 + _START_MARGIN)
     lengths = np.linalg.norm(np.diff(x, axis=0), axis=1)
     cache: dict = {}
 
@@ -192,7 +193,7 @@ def _on_segment(p, a, b) -> bool:
 
 
 def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
-               sensing: str = "minimal") -> WarmStart:
+               sensing: str = "minimal", chi2: float | None = None) -> WarmStart:
     """A feasible initial point of the smoother built from ``path``.
 
     The means are mapped onto K steps (the polyline is kept), the
@@ -219,6 +220,11 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
         ``"minimal"`` (default): no sensing is taken over from the path, each
         posterior starts as its prior and is shrunk only where needed;
         ``"path"``: the path's sensing is kept and more added where needed.
+    chi2 : float, optional
+        The collision level every transition must clear (None: the
+        scenario's); the target keeps the scenario's own level. A risk
+        budget's warm start uses its uniform level here
+        (:meth:`belief_nlp.allocation.RiskBudget.warm_level`).
 
     Returns
     -------
@@ -234,20 +240,20 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
         For bad arguments (a K below the number of edges, an unknown ``sensing``).
     """
     try:
-        return _warm_start(scenario, path, K, sensing, None)
+        return _warm_start(scenario, path, K, sensing, None, chi2)
     except InfeasibleStartError:
         if K is None or not isinstance(path, BeliefPath) or K <= path.K:
             raise
-        steps = allocate_steps(scenario, path.x, K)
+        steps = allocate_steps(scenario, path.x, K, chi2=chi2)
         if steps is None:
             raise
-        ws = _warm_start(scenario, path, K, sensing, steps)
+        ws = _warm_start(scenario, path, K, sensing, steps, chi2)
         ws.allocation = "feasibility"
         return ws
 
 
 def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str,
-                steps: np.ndarray | None) -> WarmStart:
+                steps: np.ndarray | None, chi2_collision: float | None = None) -> WarmStart:
     """:func:`warm_start` with the means cut by ``steps`` per edge (None: by length)."""
     if not isinstance(path, BeliefPath):
         raise ValidationError("path", f"must be a BeliefPath, got {type(path).__name__}")
@@ -260,9 +266,10 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
     x = resample_means(path.x, K) if steps is None else _split(np.asarray(path.x, float), steps)
     K_ = x.shape[0] - 1
     target_P = _target_posteriors(path, x)
-    chi2 = scenario.chi2
+    chi2 = scenario.chi2                                     # the target's level
+    chi2_c = chi2 if chi2_collision is None else float(chi2_collision)
     hazards = PolytopeSet.build(scenario.hazards)
-    thr = chi2 * (1 + _START_MARGIN)
+    thr = chi2_c * (1 + _START_MARGIN)
     W = scenario.W
     P = np.empty((K_ + 1, scenario.dim, scenario.dim))
     P[0] = scenario.P0
@@ -306,8 +313,8 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
     S = (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
     ws_path = BeliefPath.from_sensing(x, scenario.P0, S, W=W, noise="per_step",
                                       meta={**path.meta, "warm_start_from": path.meta.get("source", "path")})
-    lam = certificates(scenario, ws_path, hazards)
-    report = verify(scenario, ws_path)
+    lam = certificates(scenario, ws_path, hazards, chi2=chi2_c)
+    report = verify(scenario, ws_path, levels=chi2_c)
     if not report.safe:
         raise InfeasibleStartError(f"warm start failed verification: {report.summary()}")
     return WarmStart(ws_path, lam, report, halvings)
@@ -324,7 +331,7 @@ def _margin_parts(F: int, d: int) -> ca.Function:
 
 
 def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | None = None,
-                 margin: float = _START_MARGIN) -> np.ndarray:
+                 margin: float = _START_MARGIN, chi2: float | np.ndarray | None = None) -> np.ndarray:
     """Theorem-1 certificates (K, J, F), SI units, for every transition of a path.
 
     The margin-maximising lambda* (the maximiser of the Lemma-1 dual at the
@@ -343,7 +350,7 @@ def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | No
     P1 = P0 + path.transition_noise
     tm = transition_minimiser(x0, P0, x1, path.transition_noise, hazards, want_lam=True)
     lam = tm.lam                                                # (K, J, F)
-    chi2 = scenario.chi2
+    chi2 = scenario.chi2 if chi2 is None else np.asarray(chi2, float)     # collision level(s)
     target = chi2 + np.maximum(chi2 * margin, np.minimum(chi2, 0.5 * (tm.dist2 - chi2)))
     # the two parts of the Lemma-1 margin at each end, from the model's terms:
     # margin(t lam) = -t^2 quad(A^T lam, P) + t bilinear(lam, x) - chi2

@@ -1,0 +1,183 @@
+"""Risk allocation (issue 20, items 2-3): an end-to-end collision budget with
+per-pair levels as decision variables of the one model.
+
+Every bound asserted here is recomputed independently of the smoother, from
+the returned path: :func:`belief_nlp.risk.path_risk` (exact transition
+minimiser plus the result's certificates) and :func:`belief_nlp.verify`."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+import belief_nlp as bn
+from belief_nlp.allocation import RiskAllocation, RiskBudget, level_bounds, level_for, tail
+from belief_nlp.errors import InfeasibleStartError, ValidationError
+from belief_nlp.model import BeliefModel
+from belief_nlp.model.cvxpy_form import compile_problem
+from belief_nlp.model.doc import _tail_majorant
+from belief_nlp.risk import path_risk
+from belief_nlp.smoother.warmstart import warm_start
+
+K = 12
+BUDGET = 0.3
+
+
+@pytest.fixture(scope="module")
+def setting():
+    sc = bn.load_scenario("paper-multi")
+    plan = bn.plan(sc, n_nodes=300, seed=0, noise="per_step")
+    assert plan.success
+    return sc, plan.path
+
+
+@pytest.fixture(scope="module")
+def results(setting):
+    sc, path = setting
+    out = {"fixed": bn.smooth(sc, path, method="ipopt", K=K, alpha=0.1)}
+    for m in ("ipopt", "ccp"):
+        out[m] = bn.smooth(sc, path, method=m, K=K, alpha=0.1, risk=BUDGET)
+    return out
+
+
+# ------------------------------------------------------------------ the tail
+def test_tail_is_the_gaussian_tail_and_level_for_inverts_it():
+    tau = np.array([0.5, 4.605, 9.1, 25.0])
+    assert np.allclose(tail(tau), norm.sf(np.sqrt(tau)), rtol=1e-12)
+    assert np.allclose(level_for(tail(tau)), tau, rtol=1e-9)
+    assert tail(0.0) == 1.0 and tail(-1.0) == 1.0
+
+
+def test_quadratic_majorant_bounds_the_tail_and_is_tight_at_the_point():
+    f = _tail_majorant()
+    taus = np.linspace(0.05, 40.0, 4001)
+    for at in (0.3, 1.0, 4.6, 9.0, 20.0):
+        lin, y, lower = (float(v) for v in f(at, at))
+        assert math.isclose(lin, float(tail(at)), rel_tol=1e-9) and y == 0.0 and lower == at / 2
+        ok = taus >= at / 2
+        vals = np.array([[float(v) for v in f(at, t)[:2]] for t in taus[ok]])
+        bound = vals[:, 0] + 0.5 * vals[:, 1] ** 2
+        assert np.all(bound >= tail(taus[ok]) * (1 - 1e-12) - 1e-15)
+        # slope matches at the point (central difference of g)
+        h = 1e-5 * at
+        slope = (float(f(at, at + h)[0]) - float(f(at, at - h)[0])) / (2 * h)
+        assert math.isclose(slope, (float(tail(at + h)) - float(tail(at - h))) / (2 * h), rel_tol=1e-5)
+
+
+def test_level_bounds_bracket_the_uniform_level():
+    lo, hi = level_bounds(0.05, 200)
+    assert math.isclose(tail(lo), 0.05) and math.isclose(tail(hi), 1e-3 * 0.05 / 200, rel_tol=1e-9)
+    assert lo < RiskBudget(0.05).uniform_level(200) < hi
+
+
+@pytest.mark.parametrize("bad", [0, -0.1, 0.5, 1.0, float("nan"), float("inf"), True, "0.1", None])
+def test_bad_budgets_get_a_typed_error(bad):
+    with pytest.raises(ValidationError, match="risk"):
+        RiskBudget(bad)
+
+
+def test_bad_allocation_and_kind_are_named():
+    with pytest.raises(ValidationError, match="allocation"):
+        RiskBudget(0.1, allocation="greedy")
+    with pytest.raises(ValidationError, match="risk_kind"):
+        RiskBudget(0.1, kind="continuous")
+
+
+def test_smooth_rejects_bad_budgets_before_any_work(setting):
+    sc, path = setting
+    for bad in (0.0, 1.2, float("nan")):
+        with pytest.raises(ValidationError, match="risk"):
+            bn.smooth(sc, path, risk=bad)
+    with pytest.raises(ValidationError, match="allocation"):
+        bn.smooth(sc, path, allocation="uniform")            # no budget to allocate
+
+
+# ------------------------------------------------------------------ the model
+def test_convex_step_in_budget_mode_is_feasible_at_its_point(setting):
+    """The step's point satisfies every cone of its own convexification
+    (levels = the point's clearances): the step can never be infeasible."""
+    sc, path = setting
+    model = BeliefModel(sc, K, 0.1, risk=RiskBudget(BUDGET))
+    ws = warm_start(sc, path, K=K, chi2=sc.chi2)
+    z = model.tighten(model.from_path(ws.path, ws.lam))
+    lo, hi = model.data.level_bounds
+    z.tau = np.clip(model.clearances(z) / (1 + 1e-6), lo, hi)
+    assert np.sum(tail(z.tau)) <= BUDGET
+    step = compile_problem(model.convex_form)
+    J = len(sc.hazards)
+    step.set_point(z, np.ones((K, J)), np.ones((K, J)))
+    step.z.value = step.layout.point_vector(z)
+    for name, con in step.constraints.items():
+        # (CVXPY measures an exponential cone by projection: its points on the boundary read ~1e-7)
+        assert np.max(con.violation(), initial=0.0) <= (1e-6 if name == "logdet_exp" else 1e-7), name
+    assert {"budget_tail", "budget_levels", "budget_total"} <= set(step.constraints)
+
+
+def test_nlp_levels_round_trip(setting):
+    from belief_nlp.model.nlp_form import build_nlp
+
+    sc, path = setting
+    model = BeliefModel(sc, K, 0.1, risk=RiskBudget(BUDGET))
+    ws = warm_start(sc, path, K=K, chi2=sc.chi2)
+    z = model.tighten(model.from_path(ws.path, ws.lam))
+    z.tau = np.linspace(3.0, 9.0, K * len(sc.hazards)).reshape(K, -1)
+    nlp = build_nlp(model)
+    back = nlp.unpack(nlp.pack(z))
+    assert np.allclose(back.tau, z.tau)
+    assert nlp.info["n_budget"] == 1 and nlp.ubg[-1] == 1.0
+
+
+# ------------------------------------------------------------------ smoothing
+@pytest.mark.parametrize("method", ["ipopt", "ccp"])
+def test_budget_is_met_by_the_independent_bound(setting, results, method):
+    sc, _ = setting
+    r = results[method]
+    assert r.safe and r.risk is not None and r.risk.method == "optimal"
+    recomputed = path_risk(sc, r.path, r.certificates).step_time
+    assert recomputed <= BUDGET * (1 + 1e-9)
+    assert math.isclose(r.risk.bound, recomputed, rel_tol=1e-9)
+    # the allocation is proven pair by pair and fits the budget
+    assert r.risk.allocation.shape == (K, len(sc.hazards))
+    assert np.allclose(r.risk.allocation, tail(r.risk.levels))
+    assert r.risk.allotted <= BUDGET * (1 + 1e-9)
+    assert np.all(path_risk(sc, r.path, r.certificates).clearance >= r.risk.levels * (1 - 1e-6))
+    # the verifier, told the levels and the budget, agrees
+    rep = bn.verify(sc, r.path, certificates=r.certificates, levels=r.risk.levels, budget=BUDGET)
+    assert rep.safe, rep.problems
+    assert r.cost <= r.initial_cost
+
+
+def test_methods_agree_and_beat_the_fixed_level_at_a_larger_budget(results):
+    """IPOPT (exact g) and CCP (majorised g) reach the same optimum within 1 %;
+    the fixed level certifies less than BUDGET, so the budgeted optimum cannot
+    cost more (it is a feasible point of the budgeted problem)."""
+    fixed, ip, cc = results["fixed"], results["ipopt"], results["ccp"]
+    assert fixed.verification["risk_step_time"] < BUDGET
+    assert abs(ip.cost - cc.cost) <= 0.01 * min(ip.cost, cc.cost)
+    assert min(ip.cost, cc.cost) <= fixed.cost * (1 + 1e-3)
+
+
+def test_uniform_allocation_spends_the_budget_evenly(setting, results):
+    sc, path = setting
+    r = bn.smooth(sc, path, method="ipopt", K=K, alpha=0.1, risk=0.45, allocation="uniform")
+    lv = RiskBudget(0.45).uniform_level(r.path.K * len(sc.hazards))
+    assert np.allclose(r.risk.levels, lv) and r.risk.method == "uniform"
+    assert math.isclose(r.risk.allotted, 0.45, rel_tol=1e-9)
+    assert path_risk(sc, r.path, r.certificates).step_time <= 0.45
+
+
+def test_a_budget_the_path_cannot_meet_is_an_infeasible_start(setting):
+    sc, path = setting
+    with pytest.raises(InfeasibleStartError, match="risk budget"):
+        bn.smooth(sc, path, method="ipopt", K=K, risk=1e-6, k_fallback=False)
+
+
+def test_result_keeps_the_allocation_through_save_and_load(results, tmp_path):
+    r = results["ipopt"]
+    back = bn.SmoothResult.load(r.save(tmp_path / "r.json"))
+    assert isinstance(back.risk, RiskAllocation) and back == r
+    assert np.array_equal(back.risk.levels, r.risk.levels)
+    assert "risk budget 0.3" in r.summary()
