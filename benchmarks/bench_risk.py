@@ -4,7 +4,10 @@ vs the paper's fixed chi2, with Monte-Carlo checks of the certified bounds.
 Grid: paper-multi and the random-polygons family (map = seed), seeds 0-9,
 alpha in {0.1, 1.0}, Delta in {0.01, 0.05, 0.1, 0.25}. Per (scenario, seed,
 alpha) one IG-RRT* plan (N = 500, per-step noise) is smoothed (default
-method ``auto``, K = 20 from the same plan):
+method ``auto``, K = 20 from the same plan, no fallback to one step per
+edge, so that every cost compared is at K = 20; a warm start that cannot be
+built is an error row with the smoother's message; ``--replan`` starts the
+budgeted runs from ``bn.plan(..., risk=Delta)`` instead, a plan per Delta):
 
 * ``fixed``: the paper's chi2 (no budget); its certified step-time bound
   (``result.verification["risk_step_time"]``) is what that level buys;
@@ -21,10 +24,12 @@ continuous motion, so that comparison can only err in the bound's favour).
 
 Writes benchmarks/results/risk.json (the records, the machine and load
 averages) and risk.md (the table): per Delta and alpha the median cost
-ratio optimal/uniform over paths solved by both, the share of paths whose
+ratios optimal/uniform and optimal/fixed over paths solved by both, the
+median step-time bound the fixed chi2 certifies, the share of paths whose
 step-time MC interval lies within the certified bound (upper end <= bound),
 and the median wall-time ratio of the budgeted smoother to the fixed-level
-one from the same plan. ``--quick`` (seed 0, Delta 0.05 and 0.25) writes
+one from the same plan, and the error rows (no plan, no warm start; fixed-level errors count at
+every Delta). ``--quick`` (seed 0, Delta 0.05 and 0.25) writes
 risk_quick.json / risk_quick.md instead.
 
     python benchmarks/bench_risk.py [--quick] [--seeds 0-9] [--runs 10000]
@@ -91,23 +96,42 @@ def measure(sc, res, wall: float, runs: int, substeps: int, mc_seed: int) -> dic
     }
 
 
-def run_case(name: str, seed: int, alpha: float, deltas, runs: int, substeps: int, method: str) -> list[dict]:
-    """Plan once, then smooth at the fixed level and with every budget and allocation."""
+def _plan(sc, seed: int, alpha: float, **risk) -> tuple[object, str]:
+    """(path or None, why not): one IG-RRT* plan of the study's size."""
+    try:
+        planned = bn.plan(sc, n_nodes=N_NODES, seed=seed, alpha=alpha, noise="per_step", **risk)
+    except bn.BeliefNLPError as exc:
+        return None, f"{type(exc).__name__}: {exc}"[:500]
+    return (planned.path, "") if planned.success else (None, str(planned.message)[:500])
+
+
+def run_case(name: str, seed: int, alpha: float, deltas, runs: int, substeps: int, method: str,
+             replan: bool = False) -> list[dict]:
+    """Plan once, then smooth at the fixed level and with every budget and
+    allocation; ``replan``: the budgeted runs start from ``bn.plan(...,
+    risk=Delta)`` instead (a plan meeting the budget)."""
     base = {"scenario": name, "seed": seed, "alpha": alpha, "K": K, "method": method}
     sc = scenario_for(name, seed)
     t = time.perf_counter()
-    planned = bn.plan(sc, n_nodes=N_NODES, seed=seed, alpha=alpha, noise="per_step")
+    starts = {None: _plan(sc, seed, alpha)}
     base["plan_s"] = time.perf_counter() - t
-    if not planned.success:
-        return [{**base, "variant": "fixed", "delta": None, "status": "no plan", "message": planned.message}]
+    if starts[None][0] is None:
+        return [{**base, "variant": "fixed", "delta": None, "status": "no plan", "message": starts[None][1]}]
+    for d in deltas:
+        starts[d] = _plan(sc, seed, alpha, risk=d) if replan else starts[None]
     rows = []
     variants = [("fixed", None)] + [(a, d) for d in deltas for a in ALLOCATIONS]
     for i, (variant, delta) in enumerate(variants):
-        row = {**base, "variant": variant, "delta": delta}
+        row = {**base, "variant": variant, "delta": delta, "replanned": replan and delta is not None}
+        path, why = starts[delta]
+        if path is None:
+            rows.append({**row, "status": "no plan", "message": why})
+            continue
         kwargs = {} if delta is None else {"risk": delta, "allocation": variant}
         t = time.perf_counter()
         try:
-            res = bn.smooth(sc, planned.path, method=method, K=K, alpha=alpha, **kwargs)
+            # no fallback to one step per edge: costs compare at the same K only
+            res = bn.smooth(sc, path, method=method, K=K, alpha=alpha, k_fallback=False, **kwargs)
         except bn.BeliefNLPError as exc:
             row.update(status="error", message=f"{type(exc).__name__}: {exc}"[:500], wall_s=time.perf_counter() - t)
             rows.append(row)
@@ -127,26 +151,28 @@ def table(rows: list[dict], deltas) -> str:
     ok = [r for r in rows if r.get("status") not in (None, "error", "no plan") and "cost" in r]
     by = {(r["scenario"], r["seed"], r["alpha"], r["variant"], r["delta"]): r for r in ok}
     lines = ["| Delta | alpha | paths | cost optimal / uniform (median) | optimal < uniform by >= 15 % | "
-             "fixed chi2 certifies (median) | MC step rate within bound: optimal, uniform, fixed | "
-             "wall optimal / fixed, uniform / fixed (median) | errors |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "cost optimal / fixed (median) | fixed chi2 certifies (median) | MC step rate within bound: optimal, "
+             "uniform, fixed | wall optimal / fixed, uniform / fixed (median) | errors |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for delta in deltas:
         for alpha in ALPHAS:
             cases = sorted({(r["scenario"], r["seed"]) for r in rows if r["alpha"] == alpha})
-            ratio, wall_o, wall_u, fixed_bound = [], [], [], []
+            ratio, vs_fixed, wall_o, wall_u, fixed_bound = [], [], [], [], []
             within = {v: [] for v in ("optimal", "uniform", "fixed")}
-            errors = sum(1 for r in rows if r["alpha"] == alpha and (r.get("status") == "no plan" or (
-                r.get("delta") == delta and r.get("status") == "error")))
+            errors = sum(1 for r in rows if r["alpha"] == alpha and r.get("status") in ("error", "no plan")
+                         and r.get("delta") in (delta, None))
             for s, seed in cases:
                 o, u, f = (by.get((s, seed, alpha, v, d)) for v, d in
                            (("optimal", delta), ("uniform", delta), ("fixed", None)))
-                if o and u:
+                if o and u and o["K_used"] == u["K_used"]:
                     ratio.append(o["cost"] / u["cost"])
                 for v, r in (("optimal", o), ("uniform", u), ("fixed", f)):
                     if r:
                         within[v].append(r["step_within"])
                 if f:
                     fixed_bound.append(f["step_time_bound"])
+                    if o and o["K_used"] == f["K_used"]:
+                        vs_fixed.append(o["cost"] / f["cost"])
                     if o:
                         wall_o.append(o["wall_s"] / f["wall_s"])
                     if u:
@@ -154,7 +180,7 @@ def table(rows: list[dict], deltas) -> str:
             share = ", ".join(f"{sum(w)}/{len(w)}" for w in within.values())
             below = sum(1 for x in ratio if x <= 0.85)
             lines.append(f"| {delta:g} | {alpha:g} | {len(ratio)} | {_median(ratio):.3f} | {below}/{len(ratio)} | "
-                         f"{_median(fixed_bound):.3g} | {share} | {_median(wall_o):.2f}, {_median(wall_u):.2f} | "
+                         f"{_median(vs_fixed):.3f} | {_median(fixed_bound):.3g} | {share} | {_median(wall_o):.2f}, {_median(wall_u):.2f} | "
                          f"{errors} |")
     return "\n".join(lines)
 
@@ -166,6 +192,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=10_000, help="Monte-Carlo runs per path")
     ap.add_argument("--substeps", type=int, default=20, help="Monte-Carlo samples per transition")
     ap.add_argument("--method", default="auto", help="smoothing method (default auto)")
+    ap.add_argument("--replan", action="store_true",
+                    help="start the budgeted runs from bn.plan(..., risk=Delta) (a plan per Delta)")
     ap.add_argument("--out", type=Path, default=None, help="JSON record (default results/risk[_quick].json)")
     args = ap.parse_args()
     logging.disable(logging.WARNING)
@@ -178,13 +206,14 @@ def main() -> None:
     with tqdm(cases, desc="risk study", unit="case") as bar:
         for name, seed, alpha in bar:
             bar.set_postfix_str(f"{name} seed {seed} alpha {alpha:g}")
-            rows += run_case(name, seed, alpha, deltas, args.runs, args.substeps, args.method)
+            rows += run_case(name, seed, alpha, deltas, args.runs, args.substeps, args.method, args.replan)
     md = table(rows, deltas)
     record = {
         "benchmark": "end-to-end risk budget: optimal vs uniform allocation vs fixed chi2 (issue 20 item 4)",
         "settings": {"scenarios": SCENARIOS, "seeds": seeds, "alphas": ALPHAS, "deltas": deltas, "K": K,
                      "n_nodes": N_NODES, "planner_noise": "per_step", "method": args.method, "mc_runs": args.runs,
-                     "mc_substeps": args.substeps, "mc_interval": "95 % Clopper-Pearson", "quick": args.quick},
+                     "mc_substeps": args.substeps, "mc_interval": "95 % Clopper-Pearson", "quick": args.quick,
+                     "replan": args.replan},
         "machine": {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
                     "load_average_start": load_start, "load_average_end": os.getloadavg(),
                     "total_s": time.perf_counter() - t0},

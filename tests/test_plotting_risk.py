@@ -24,10 +24,14 @@ def sc():
 
 
 @pytest.fixture(scope="module")
-def smoothed(sc):
-    """A real smoothed path (a small plan, K = 8, at the scenario's fixed level); figures closed after each test."""
-    plan = bn.plan(sc, n_nodes=150, seed=0)
-    yield bn.smooth(sc, plan.path, K=K, method="ipopt")
+def planned(sc):
+    return bn.plan(sc, n_nodes=150, seed=0)
+
+
+@pytest.fixture(scope="module")
+def smoothed(sc, planned):
+    """A real smoothed path (a small plan, K = 8, at the scenario's fixed level); figures closed at the end."""
+    yield bn.smooth(sc, planned.path, K=K, method="ipopt")
     plt.close("all")
 
 
@@ -94,6 +98,27 @@ def test_fixed_level_result_is_drawn_from_its_certified_bounds(sc, smoothed, tmp
     assert out.stat().st_size > 0
     img = mpimg.imread(out)
     assert img.shape[0] > 100 and len(np.unique(img.reshape(-1, img.shape[-1])[::50], axis=0)) > 5
+
+
+def test_budgeted_result_is_drawn_from_its_allocation(sc, planned):
+    res = bn.smooth(sc, planned.path, K=K, method="ipopt", risk=0.1)      # optimal allocation
+    alloc = res.risk
+    assert alloc.allocation.shape == (K, len(sc.hazards))
+    fig, (ax_map, ax_bar) = bp.plot_risk_allocation(sc, res, log=True)
+    h = _heights(ax_bar)
+    np.testing.assert_allclose(h, alloc.allocation.sum(axis=1), rtol=1e-12)
+    assert h.sum() == pytest.approx(alloc.allotted, rel=1e-12) and h.sum() <= 0.1 * (1 + 1e-9)
+    (budget,) = bp.find_artists(ax_bar, "risk-budget")
+    (bound,) = bp.find_artists(ax_bar, "risk-bound")
+    assert budget.get_ydata()[0] == 0.1 and bound.get_ydata()[0] == alloc.bound
+    assert "optimal" in ax_bar.get_title()
+    # ellipse k at min_j levels[k-1, j]: its extent along each axis is sqrt(tau P_ii)
+    (ell,) = bp.find_artists(ax_map, "risk-ellipses")
+    tau = np.min(alloc.levels, axis=1)
+    for k in range(1, K + 1):
+        box = ell.get_paths()[k].get_extents()
+        np.testing.assert_allclose([box.width / 2, box.height / 2], np.sqrt(tau[k - 1] * np.diag(res.path.P[k])),
+                                   rtol=1e-3)
 
 
 def test_explicit_allocation_stacked_and_dominant(sc, smoothed):
