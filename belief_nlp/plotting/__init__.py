@@ -15,7 +15,8 @@ Conventions
 * Artists carry a ``gid`` so they can be found and restyled afterwards with
   :func:`find_artists`: ``"domain"``, ``"obstacle"``, ``"target"``,
   ``"start"``, ``"mean-path"``, ``"prior-ellipses"``, ``"posterior-ellipses"``,
-  ``"tree-edges"``, ``"tree-nodes"``, ``"tree-ellipses"``, ``"best-path"``.
+  ``"tree-edges"``, ``"tree-nodes"``, ``"tree-ellipses"``, ``"best-path"``,
+  ``"risk-ellipses"``, ``"risk-bars"``, ``"risk-budget"``, ``"risk-bound"``.
 * 3-D scenarios are drawn on 3-D axes (``mpl_toolkits.mplot3d``): polytopes as
   translucent facets of their convex hulls (``scipy.spatial.ConvexHull``,
   coplanar triangles merged into one polygon per face), confidence ellipsoids
@@ -34,6 +35,8 @@ Modules (one idea each; import from ``belief_nlp.plotting``, not from them)
 * ``cost_history``: :func:`plot_cost_history` (cost against CCP iteration).
 * ``anytime``: :func:`plot_anytime` (planner best cost, median and quartiles over runs).
 * ``animation``: :func:`animate_smoothing` (GIF over CCP iterations).
+* ``risk``: :func:`plot_risk_allocation` (ellipses at each transition's own
+  level beside the risk allotted per transition), :func:`fixed_allocation`.
 """
 
 from __future__ import annotations
@@ -44,17 +47,20 @@ from .belief_path import plot_belief_path
 from .cost_history import plot_cost_history
 from .ellipses import plot_ellipse, plot_ellipses
 from .figure import find_artists, save_figure
+from .risk import fixed_allocation, plot_risk_allocation
 from .scenario import plot_scenario
 from .tree import plot_tree
 
 __all__ = [
     "animate_smoothing",
     "find_artists",
+    "fixed_allocation",
     "plot_anytime",
     "plot_belief_path",
     "plot_cost_history",
     "plot_ellipse",
     "plot_ellipses",
+    "plot_risk_allocation",
     "plot_scenario",
     "plot_tree",
     "save_figure",
