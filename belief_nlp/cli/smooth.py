@@ -22,7 +22,8 @@ def add_parser(sub) -> None:
                     "or, without --path, from an IG-RRT* run with the planner options below. Writes "
                     "OUT/smooth.json (SmoothResult.load reads it), OUT/smoothed_path.json|npz "
                     "(BeliefPath.load), OUT/smooth.png (initial and smoothed paths), OUT/smooth_cost.png "
-                    "(cost per iteration) and, with --gif, OUT/smoothing.gif. The default method, auto, runs "
+                    "(cost per iteration), with a risk budget OUT/smooth_risk.png (each transition's ellipses at "
+                    "its own level and its allotted risk) and, with --gif, OUT/smoothing.gif. The default method, auto, runs "
                     "IPOPT on the exact NLP and falls back to CCP from the best safe point; the result "
                     "says which answered (auto:ipopt or auto:ccp). The status (converged, "
                     "max_iter, time_limit, ...) is printed; solver failures exit with code 3.",
@@ -62,6 +63,11 @@ def _cmd_smooth(run: _Run) -> int:
     note = "" if iterates_feasible(res.method) else ", iterates feasible only near the end"
     ax.set_title(f"steering cost (alpha = {res.alpha:g}{note})", fontsize=9)
     _save_fig(run, fig, "smooth_cost.png")
+    if res.risk is not None:
+        from ..plotting import plot_risk_allocation
+
+        fig, _ = plot_risk_allocation(sc, res)
+        _save_fig(run, fig, "smooth_risk.png")
     if a.gif and res.iterates:
         gif, _ = animate_smoothing(sc, res.iterates, run.out / "smoothing.gif", dpi=min(a.dpi, 80),
                                    titles=_iterate_titles(res))
@@ -70,7 +76,7 @@ def _cmd_smooth(run: _Run) -> int:
     run.say(f"smooth: {_status_line(res)}; steering cost at K = {res.path.K}: {res.initial_cost:.6g} -> "
             f"{res.cost:.6g} (control {res.control:.4g} + {res.alpha:g} x information {res.information:.4g} nats), "
             f"{res.nit} iterations")
-    if sc.risk is not None:
+    if res.risk is not None:
         run.say(f"smooth: {res.risk.summary()}")
     if _smooth_failed(res):
         return _fail(f"smoothing failed: {_status_line(res)}")
