@@ -103,6 +103,11 @@ class NLPProblem:
                     if j == c:
                         idx = off + (k - 1) * len(tri) + p
                         z0[idx] = lbz[idx] = ubz[idx] = 0.0
+        if self.info.get("n_budget"):
+            # the levels stay where the first stage allocated them: the polish only
+            # removes the floor's sensing (with them free it took 50+ iterations)
+            n = K * self.info["J"]
+            lbz[-n:] = ubz[-n:] = z0[-n:]
         return z0, lbz, ubz
 
 
@@ -321,4 +326,4 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
                       info={"n_variables": int(z.shape[0]), "n_constraints": int(g.shape[0]),
                             "n_kalman": n_kal, "n_psd": n_psd, "n_target": n_tgt, "n_budget": len(g_bud),
                             "sensing_offset": nX,
-                            "tri": tri, "d": d, "K": K})
+                            "tri": tri, "d": d, "K": K, "J": J})

@@ -258,7 +258,8 @@ class SmoothingProblem:
             total = float(np.sum(tail(clear)))
             # levels: the point's own (a solver's) where proven, else its clearances; within [tau_lo, tau_hi]
             proven = clear * (1 - 1e-9)                  # a level its certificate proves despite rounding
-            tau = np.minimum(clear / (1 + 1e-6), tau_hi) if out.tau is None else np.minimum(out.tau, proven)
+            # (a start 1e-3 inside every pair row: interior for IPOPT; the sum stays within the budget)
+            tau = np.minimum(clear / (1 + 1e-3), tau_hi) if out.tau is None else np.minimum(out.tau, proven)
             if not np.sum(tail(tau)) <= D.budget:
                 tau = np.minimum(proven, tau_hi)
             out.tau = np.clip(tau, tau_lo, tau_hi)
