@@ -38,7 +38,8 @@ sys.modules.setdefault("check_notebooks", check)
 _spec.loader.exec_module(check)
 
 NOTEBOOKS = check.notebooks()
-EXPECTED = ("01_quickstart", "02_paper_experiment", "03_solver_comparison", "04_mpc_export", "05_mpc_closed_loop")
+EXPECTED = ("01_quickstart", "02_paper_experiment", "03_solver_comparison", "04_mpc_export", "05_mpc_closed_loop",
+            "06_risk_allocation")
 # Re-executed with the full settings in the default suite (8-30 s, by load);
 # the others take 20-90 s each at full size.
 CHEAP = ("04_mpc_export",)

@@ -113,7 +113,11 @@ class OptiMPC:
         o.set_value(self.p_t, kit.terminal.params())
         self._ipopt = dict(ipopt or {})
         self.warm, self.warm_duals = bool(warm), bool(warm_duals)
-        o.solver("ipopt", {"expand": True, "print_time": False, "detect_simple_bounds": True},
+        # show_eval_warnings off, as in the smoother's NLP: IPOPT backtracks from a
+        # trial point where the cost is NaN (outside its domain), and CasADi would
+        # print a timestamped warning for each one (hundreds per closed loop)
+        o.solver("ipopt", {"expand": True, "print_time": False, "detect_simple_bounds": True,
+                           "show_eval_warnings": False},
                  ipopt_options(warm=self.warm, **self._ipopt))
         self.last_stats: dict = {}
         self._last: tuple[int, np.ndarray] | None = None    # (t, multipliers) of the last solve
