@@ -108,8 +108,9 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
         if lv.shape != (steps, len(sc.hazards)) or not np.all(np.isfinite(lv)) or np.any(lv <= 0):
             raise ValidationError("levels", f"must be ({steps}, {len(sc.hazards)}) finite levels > 0, "
                                             f"got shape {lv.shape}")
-        # stage rows >= margin at level lv - margin: each certificate proves lv itself
-        p_all = kit.stage.stage_params(np.vstack([lv, np.repeat(lv[-1:], horizon, axis=0)]) - kit.stage.margin)
+        # stage rows >= margin at level lv: the plan keeps that margin beyond each level, so
+        # IPOPT's tolerance (~1e-6) never lands a step below the level the exact check asks
+        p_all = kit.stage.stage_params(np.vstack([lv, np.repeat(lv[-1:], horizon, axis=0)]))
     mpc = make_solver(tool, kit, horizon)
     hazards = kit.hazards                              # built once; hold() uses it too
     U = kit.guess(ref, extra=horizon, levels=lv)      # (nu, steps + horizon)
