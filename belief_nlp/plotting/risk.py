@@ -278,7 +278,7 @@ def _bars(ax, risk: np.ndarray, names: list[str], style: str) -> tuple[list, str
         p.set_gid("risk-bars")
     ax.set_xlabel("transition k")
     ax.set_ylabel("allotted collision probability")
-    ax.set_xticks(k if K <= 25 else k[:: int(np.ceil(K / 20))])
+    ax.set_xticks(k if K <= 12 else k[k % int(np.ceil(K / 10)) == 0])      # labels that do not overlap
     ax.set_xlim(0.4, K + 0.6)
     return [Patch(facecolor=palette[j], label=names[j]) for j in shown], title
 
