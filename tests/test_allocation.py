@@ -188,3 +188,23 @@ def test_result_keeps_the_allocation_through_save_and_load(results, tmp_path):
     assert isinstance(back.risk, RiskAllocation) and back == r
     assert np.array_equal(back.risk.levels, r.risk.levels)
     assert "risk budget 0.3" in r.summary()
+
+
+@pytest.mark.parametrize("method", ["auto", "sqp"])
+def test_every_nlp_method_takes_a_budget(setting, method):
+    """auto and SQP reach the budgeted problem through the same NLP form; the
+    bound is recomputed from the path."""
+    sc, path = setting
+    r = bn.smooth(sc, path, method=method, K=8, alpha=0.1, risk=BUDGET)
+    assert r.safe and r.risk is not None and r.cost <= r.initial_cost
+    assert path_risk(sc, r.path, r.certificates).step_time <= BUDGET * (1 + 1e-9)
+
+
+def test_fatrop_refuses_an_optimal_allocation_by_name(setting):
+    from belief_nlp.methods.fatrop import available
+
+    if not available():
+        pytest.skip("this CasADi build has no fatrop plug-in")
+    sc, path = setting
+    with pytest.raises(ValidationError, match="risk"):
+        bn.smooth(sc, path, method="fatrop", K=8, risk=BUDGET)
