@@ -418,8 +418,9 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
     levels : float or ndarray, shape (K, J), optional
         The collision level of every transition-hazard pair (a path smoothed
         under a risk budget has its own per pair, ``SmoothResult.risk.levels``);
-        None: the scenario's chi2. The target is always judged at the
-        scenario's own chi2.
+        None: the scenario's chi2, or -- for a result smoothed under a risk
+        budget -- its ``risk.levels`` and ``risk.budget``. The target is
+        always judged at the scenario's own chi2.
     budget : float, optional
         An end-to-end collision budget: the path is safe only when its
         certified step-time bound (``report.risk.step_time``) is at most
@@ -440,6 +441,9 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
     scenario, by_name = _as_scenario(scenario)
     if certificates is None:
         certificates = getattr(path, "certificates", None)
+    allocation = getattr(path, "risk", None) if not isinstance(path, BeliefPath) else None
+    if levels is None and budget is None and allocation is not None and hasattr(allocation, "levels"):
+        levels, budget = allocation.levels, allocation.budget      # a result smoothed under a risk budget
     path = _as_path(path)
     n_samples = _sample_count("n_samples", n_samples)
     n_refine = _sample_count("n_refine", n_refine)

@@ -208,3 +208,11 @@ def test_fatrop_refuses_an_optimal_allocation_by_name(setting):
     sc, path = setting
     with pytest.raises(ValidationError, match="risk"):
         bn.smooth(sc, path, method="fatrop", K=8, risk=BUDGET)
+
+
+def test_verify_judges_a_budgeted_result_at_its_own_levels(setting, results):
+    sc, _ = setting
+    r = results["ipopt"]
+    assert np.min(r.risk.levels) < sc.chi2                  # some pair spends more than the paper's level allows
+    assert bn.verify(sc, r).safe                            # the result carries its levels and budget
+    assert not bn.verify(sc, r.path, certificates=r.certificates).safe     # the bare path at the fixed level is not
