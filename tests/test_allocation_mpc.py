@@ -52,9 +52,10 @@ def test_bundle_levels_are_parameters(smoothed):
         b.stage_params(np.ones(J))
 
 
-def test_closed_loop_with_the_allocation_stays_within_the_budget(smoothed):
+@pytest.mark.parametrize("tool", ["opti", "dompc"])
+def test_closed_loop_with_the_allocation_stays_within_the_budget(smoothed, tool):
     sc, r = smoothed
-    cl = closed_loop(sc, "opti", horizon=5, steps=r.path.K, reference=r.path, levels=r.risk.levels)
+    cl = closed_loop(sc, tool, horizon=5, steps=r.path.K, reference=r.path, levels=r.risk.levels)
     assert cl.K == r.path.K
     assert path_risk(sc, cl).step_time <= BUDGET
     rep = bn.verify(sc, cl, levels=r.risk.levels, budget=BUDGET)
@@ -66,4 +67,4 @@ def test_closed_loop_levels_are_checked(smoothed):
     with pytest.raises(ValidationError, match="levels"):
         closed_loop(sc, "opti", horizon=5, steps=r.path.K, reference=r.path, levels=r.risk.levels[:-1])
     with pytest.raises(ValidationError, match="levels"):
-        closed_loop(sc, "dompc", horizon=5, steps=r.path.K, reference=r.path, levels=r.risk.levels)
+        closed_loop(sc, "rockit", horizon=5, steps=r.path.K, reference=r.path, levels=r.risk.levels)

@@ -98,7 +98,8 @@ class DompcMPC:
     """The belief MPC of ``horizon`` stages in do-mpc (module doc).
 
     ``solve`` sets the tvp values (gates of the run, references, obstacle
-    data ``self.p``/``self.p_t`` -- assign new values to move obstacles),
+    data ``self.p``/``self.p_t`` -- assign new values to move obstacles;
+    ``self.p`` may hold one column per stage, e.g. a risk allocation's levels),
     writes the guess and its rollout into do-mpc's initial point
     (``opt_x_num``) and calls ``make_step``.
     """
@@ -125,7 +126,9 @@ class DompcMPC:
                           for name in ("gate", "ref", "p", "p_t")}
         c = np.minimum(np.arange(self.N + 1), self.N - 1)
         gate = np.hstack([self._gate, np.zeros((2, 1))])
-        vals = {"gate": gate, "ref": self._ref[:, c], "p": np.tile(np.reshape(self.p, (-1, 1)), self.N + 1),
+        P = np.asarray(self.p, float)
+        P = np.tile(P.reshape(-1, 1), self.N + 1) if P.ndim == 1 else P[:, c]     # per stage: (n_p, N)
+        vals = {"gate": gate, "ref": self._ref[:, c], "p": P,
                 "p_t": np.tile(np.reshape(self.p_t, (-1, 1)), self.N + 1)}
         v = np.asarray(tpl.master, float).ravel()
         for name, idx in self._itvp.items():
@@ -133,10 +136,14 @@ class DompcMPC:
         tpl.master = ca.DM(v)
         return tpl
 
-    def solve(self, state: np.ndarray, t: int, steps: int, ref: np.ndarray, guess: np.ndarray) -> np.ndarray:
+    def solve(self, state: np.ndarray, t: int, steps: int, ref: np.ndarray, guess: np.ndarray,
+              p: np.ndarray | None = None) -> np.ndarray:
         """Solve from ``state`` at time t of a run of ``steps`` (arguments as
-        :meth:`.OptiMPC.solve`); returns the planned inputs (nu, N)."""
+        :meth:`.OptiMPC.solve`; ``p`` (n_p, N): each stage's obstacle data and
+        levels, kept in ``self.p``); returns the planned inputs (nu, N)."""
         kit, m = self.kit, self.mpc
+        if p is not None:
+            self.p = np.asarray(p, float)
         self._gate, self._ref = kit.gates(t, self.N, steps), np.asarray(ref, float)
         w = np.asarray(m.opt_x_num.master, float).ravel()
         w[self._iu] = guess
