@@ -52,7 +52,7 @@ def test_bundle_levels_are_parameters(smoothed):
         b.stage_params(np.ones(J))
 
 
-@pytest.mark.parametrize("tool", ["opti", "dompc"])
+@pytest.mark.parametrize("tool", ["opti", "dompc", "rockit"])
 def test_closed_loop_with_the_allocation_stays_within_the_budget(smoothed, tool):
     sc, r = smoothed
     cl = closed_loop(sc, tool, horizon=5, steps=r.path.K, reference=r.path, levels=r.risk.levels)
@@ -67,4 +67,4 @@ def test_closed_loop_levels_are_checked(smoothed):
     with pytest.raises(ValidationError, match="levels"):
         closed_loop(sc, "opti", horizon=5, steps=r.path.K, reference=r.path, levels=r.risk.levels[:-1])
     with pytest.raises(ValidationError, match="levels"):
-        closed_loop(sc, "rockit", horizon=5, steps=r.path.K, reference=r.path, levels=r.risk.levels)
+        closed_loop(sc, "opti", horizon=5, steps=r.path.K, reference=r.path, levels=-r.risk.levels)

@@ -103,8 +103,6 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
     lv = None
     if levels is not None:
         lv = np.asarray(levels, float)
-        if tool not in ("opti", "dompc"):
-            raise ValidationError("levels", f"per-stage levels are wired for tools 'opti' and 'dompc', not {tool!r}")
         if lv.shape != (steps, len(sc.hazards)) or not np.all(np.isfinite(lv)) or np.any(lv <= 0):
             raise ValidationError("levels", f"must be ({steps}, {len(sc.hazards)}) finite levels > 0, "
                                             f"got shape {lv.shape}")

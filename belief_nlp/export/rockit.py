@@ -52,7 +52,7 @@ def rockit_ocp(kit: BeliefMPC, horizon: int, ipopt: dict | None = None, warm: bo
     ocp.set_next(s, kit.step(s, v))
     sym = {"s": s, "v": v, "s0": ocp.parameter(kit.nx),
            "gate": ocp.parameter(2, grid="control"), "ref": ocp.parameter(kit.n_ref, grid="control"),
-           "p": ocp.parameter(kit.stage.function.size1_in("p")),
+           "p": ocp.parameter(kit.stage.function.size1_in("p"), grid="control"),     # per stage (levels)
            "p_t": ocp.parameter(kit.terminal.function.size1_in("p"))}
     ocp.subject_to(ocp.at_t0(s) == sym["s0"])
     sym["rows"] = rows = kit.rows(s, v, sym["gate"], sym["p"], sym["p_t"])
@@ -61,7 +61,7 @@ def rockit_ocp(kit: BeliefMPC, horizon: int, ipopt: dict | None = None, warm: bo
         if i == j:
             ocp.subject_to(s[kit.d + n] >= 0, include_first=False)
     ocp.add_objective(ocp.sum(kit.cost(s, v, sym["gate"], sym["ref"])))
-    ocp.set_value(sym["p"], kit.stage.params())
+    ocp.set_value(sym["p"], np.tile(kit.stage.params()[:, None], (1, N)))
     ocp.set_value(sym["p_t"], kit.terminal.params())
     ocp.method(MultipleShooting(N=N))
     ocp.solver("ipopt", {"expand": True, "print_time": False,
@@ -93,10 +93,14 @@ class RockitMPC:
             return None
         return opti, U, X
 
-    def solve(self, state: np.ndarray, t: int, steps: int, ref: np.ndarray, guess: np.ndarray) -> np.ndarray:
+    def solve(self, state: np.ndarray, t: int, steps: int, ref: np.ndarray, guess: np.ndarray,
+              p: np.ndarray | None = None) -> np.ndarray:
         """Solve from ``state`` at time t of a run of ``steps`` (arguments as
-        :meth:`.OptiMPC.solve`); returns the planned inputs (nu, N)."""
+        :meth:`.OptiMPC.solve`, ``p`` (n_p, N) each stage's obstacle data and
+        levels); returns the planned inputs (nu, N)."""
         ocp, sym, kit = self.ocp, self.sym, self.kit
+        if p is not None:
+            ocp.set_value(sym["p"], np.asarray(p, float))
         ocp.set_value(sym["s0"], np.asarray(state, float))
         ocp.set_value(sym["gate"], kit.gates(t, self.N, steps))
         ocp.set_value(sym["ref"], np.asarray(ref, float))
