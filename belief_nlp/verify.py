@@ -31,12 +31,12 @@ import os
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.optimize import nnls
 
 from . import belief
 from ._limits import MAX_VERIFY_SAMPLES
 from .errors import ValidationError
 from .path import BeliefPath
+from ._verify_distances import _psd_part, _sqdist, _support
 from .polytope import Polytope
 from .risk import RiskBound, path_risk
 from .scenario import Scenario, load_scenario
@@ -44,8 +44,6 @@ from .scenario import Scenario, load_scenario
 # Path entries beyond this are not measured (their squares and products
 # would overflow); the path is reported unsafe instead.
 _MAX_CHECKABLE = 1e100
-# Samples x polygon vertices handled at once by the 2-D distance (bounds memory).
-_CHUNK_ENTRIES = 2_000_000
 
 __all__ = ["verify", "VerificationReport"]
 
@@ -180,110 +178,6 @@ class VerificationReport:
                                        else float(np.min(self.certificate_margins, initial=np.inf))),
             "risk_step_time": None if self.risk is None else self.risk.step_time,
         }
-
-
-# ----------------------------------------------------------------- distances
-def _chol(P: np.ndarray) -> np.ndarray:
-    d = P.shape[-1]
-    jitter = 1e-30 * np.eye(d)
-    sym = 0.5 * (P + np.swapaxes(P, -1, -2))
-    try:
-        return np.linalg.cholesky(sym + jitter)
-    except np.linalg.LinAlgError:
-        # Indefinite P(s) (only for paths already reported as inconsistent):
-        # measure with the PSD part so that the report can still be built.
-        w, V = np.linalg.eigh(sym)
-        return np.linalg.cholesky((V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2) + jitter)
-
-
-def _sqdist_halfspace(x: np.ndarray, P: np.ndarray, a: np.ndarray, beta: float) -> np.ndarray:
-    """Samples (n, d), (n, d, d) to the obstacle {a^T y <= beta}."""
-    t = x @ a - beta
-    aPa = np.einsum("i,nij,j->n", a, P, a) + 1e-30
-    return np.where(t <= 0, 0.0, t * t / aPa)
-
-
-def _sqdist_polygon(x: np.ndarray, P: np.ndarray, V: np.ndarray) -> np.ndarray:
-    """Samples (n, 2), (n, 2, 2) to a convex polygon with CCW vertices V (v, 2)."""
-    L = _chol(P)
-    # whitened vertices w = L^-1 (v - x): solve per sample
-    rel = V[None, :, :] - x[:, None, :]                                   # (n, v, 2)
-    a, c, d_ = L[:, 0, 0], L[:, 1, 0], L[:, 1, 1]
-    w0 = rel[..., 0] / a[:, None]
-    w1 = (rel[..., 1] - c[:, None] * w0) / d_[:, None]
-    W = np.stack([w0, w1], axis=-1)                                       # (n, v, 2)
-    E = np.roll(W, -1, axis=1) - W                                        # edges
-    # origin inside iff it lies left of (or on) every CCW edge (whitening keeps orientation: det L > 0)
-    cross = E[..., 0] * (-W[..., 1]) - E[..., 1] * (-W[..., 0])
-    inside = np.all(cross >= 0, axis=1)
-    t = np.clip(-np.einsum("nvi,nvi->nv", W, E) / np.maximum(np.einsum("nvi,nvi->nv", E, E), 1e-300), 0, 1)
-    Q = W + t[..., None] * E
-    dist2 = np.min(np.einsum("nvi,nvi->nv", Q, Q), axis=1)
-    return np.where(inside, 0.0, dist2)
-
-
-def _sqdist_ldp(x: np.ndarray, P: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Least-distance programming via NNLS, one sample at a time.
-
-    min ||u||^2 s.t. (A L) u <= b - A x. Lawson-Hanson: with G = -(A L),
-    h = -(b - A x), solve NNLS min ||E w - f||, E = [G^T; h^T], f = e_{d+1};
-    then u = -r[:d] / r[d] with r = E w - f (infeasible when r = 0).
-    """
-    out = np.empty(x.shape[0])
-    d = x.shape[1]
-    f = np.zeros(d + 1)
-    f[-1] = 1.0
-    for i in range(x.shape[0]):
-        L = _chol(P[i])
-        c = b - A @ x[i]
-        if np.all(c >= 0):
-            out[i] = 0.0
-            continue
-        G = -(A @ L)
-        h = -c
-        E = np.vstack([G.T, h[None, :]])
-        try:
-            w, _ = nnls(E, f, maxiter=50 * (A.shape[0] + d))
-        except (RuntimeError, ValueError):  # no convergence, or non-finite data: undecided
-            out[i] = np.nan
-            continue
-        r = E @ w - f
-        if abs(r[-1]) < 1e-300:
-            out[i] = np.inf
-            continue
-        u = -r[:d] / r[-1]
-        out[i] = float(u @ u)
-    return out
-
-
-def _sqdist(x: np.ndarray, P: np.ndarray, poly: Polytope) -> np.ndarray:
-    if poly.n_faces == 1:
-        return _sqdist_halfspace(x, P, poly.A[0], float(poly.b[0]))
-    if poly.dim == 2 and poly.vertices is not None:
-        # (samples x vertices) temporaries: chunk so that memory stays bounded
-        step = max(1, _CHUNK_ENTRIES // poly.vertices.shape[0])
-        return np.concatenate([_sqdist_polygon(x[i:i + step], P[i:i + step], poly.vertices)
-                               for i in range(0, x.shape[0], step)])
-    return _sqdist_ldp(x, P, poly.A, poly.b)
-
-
-def _support(P: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """||P^1/2 a|| for each row a of A, via eigendecomposition."""
-    w, V = np.linalg.eigh(0.5 * (P + P.T))
-    R = (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
-    return np.linalg.norm(A @ R, axis=1)
-
-
-def _psd_part(P: np.ndarray, rtol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest symmetric PSD matrices of a stack, and which ones were not PSD
-    (asymmetric or with an eigenvalue below -rtol * norm)."""
-    sym = 0.5 * (P + np.swapaxes(P, -1, -2))
-    norm = np.maximum(np.linalg.norm(P, axis=(-2, -1)), 1e-300)
-    asym = np.linalg.norm(P - sym, axis=(-2, -1)) > rtol * norm
-    w, V = np.linalg.eigh(sym)
-    neg = w[..., 0] < -rtol * norm
-    fixed = np.where(neg[:, None, None], (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2), sym)
-    return fixed, asym | neg
 
 
 # ------------------------------------------------------------- arguments
