@@ -32,9 +32,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import ndtr, ndtri
+from scipy.special import ndtri
 
 from .errors import ValidationError
+from .risk import gaussian_tail
 
 __all__ = ["RiskBudget", "RiskAllocation", "tail", "level_for", "level_bounds", "ALLOCATIONS", "RISK_KINDS"]
 
@@ -47,9 +48,9 @@ FLOOR = 1e-3
 
 def tail(tau: np.ndarray | float) -> np.ndarray:
     """g(tau) = Phi_bar(sqrt(tau)): the instantaneous collision bound of a pair
-    certified at level tau (1 for tau <= 0)."""
-    tau = np.asarray(tau, dtype=float)
-    return np.where(tau > 0, ndtr(-np.sqrt(np.maximum(tau, 0.0))), 1.0)
+    certified at level tau (1 for tau <= 0); the same function as
+    :func:`belief_nlp.risk.gaussian_tail`, which reports it."""
+    return gaussian_tail(tau)
 
 
 def level_for(p: np.ndarray | float) -> np.ndarray:

@@ -27,6 +27,12 @@ from .warmstart import WarmStart, certificates
 __all__ = ["Check", "Outcome", "SmoothingProblem"]
 
 
+def _require_finite(z: Layout) -> None:
+    """ValueError unless every entry of the point is finite (never safe then)."""
+    if not all(np.all(np.isfinite(a)) for a in (z.x, z.S, z.Q, z.lam)):
+        raise ValueError("non-finite point")
+
+
 @dataclass
 class Check:
     """Certified safety of a point (docs/safety.md).
@@ -196,9 +202,7 @@ class SmoothingProblem:
             return self._check_budget(z)
         accept = self.policy.accept * D.chi2
         try:
-            if not (np.all(np.isfinite(z.x)) and np.all(np.isfinite(z.S)) and np.all(np.isfinite(z.Q))
-                    and np.all(np.isfinite(z.lam))):
-                raise ValueError("non-finite point")
+            _require_finite(z)
             if np.any(z.lam < 0):      # interior-point iterates sit ~1e-8 outside lam >= 0; a proof needs lam >= 0
                 z = z.copy()
                 z.lam = np.maximum(z.lam, 0.0)
@@ -235,9 +239,7 @@ class SmoothingProblem:
         accept = self.policy.accept * D.chi2
         tau_lo, tau_hi = D.level_bounds
         try:
-            if not (np.all(np.isfinite(z.x)) and np.all(np.isfinite(z.S)) and np.all(np.isfinite(z.Q))
-                    and np.all(np.isfinite(z.lam))):
-                raise ValueError("non-finite point")
+            _require_finite(z)
             out = z.copy()
             out.lam = np.maximum(out.lam, 0.0)
             P = model.covariances(out)

@@ -244,12 +244,6 @@ def _budget(scenario: Scenario, risk: Any, allocation: Any, kind: Any) -> RiskBu
     return RiskBudget(risk, allocation, kind)
 
 
-def _level(budget: RiskBudget, n_pairs: int) -> float:
-    """The fixed collision level of the run: the uniform allocation's, or the
-    optimal allocation's warm start level (:class:`RiskBudget`)."""
-    return budget.uniform_level(n_pairs) if budget.allocation == "uniform" else budget.warm_level(n_pairs)
-
-
 def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str,
                 fallback: bool, budget: RiskBudget | None = None) -> tuple[WarmStart, dict]:
     """The warm start at K, or -- when K is infeasible and fallback allowed -- at
