@@ -272,7 +272,7 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
             if budget.allocation == "uniform" or bound <= 0.97 * budget.budget:
                 return warm
             best = bound
-            break                # a lower level only spends more: no later rung can fit
+            break                # a lower level senses less and spends more: later rungs would not fit
         why = (f"the best warm start's certified bound is {best:.3g}" if np.isfinite(best)
                else f"every pair at level {levels[-1]:.4g}: {err}")
         raise InfeasibleStartError(f"no warm start meets the risk budget {budget.budget:g} ({why}; plan with "
