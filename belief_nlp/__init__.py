@@ -17,7 +17,8 @@ from .scenario import Scenario, list_scenarios, load_scenario, save_scenario, sc
 from .allocation import RiskAllocation, RiskBudget
 from .verify import VerificationReport, verify
 from .smoother import (DEFAULT_METHOD, STATUSES, IterationRecord, Method, Option, Outcome, SmoothResult,
-                       SmoothingProblem, WarmStart, available_methods, get_method, smooth, warm_start)
+                       SmoothingProblem, WarmStart, available_methods, available_solvers, get_method, smooth,
+                       warm_start)
 from .smoother import register as register_method
 from . import methods  # noqa: F401 - importing registers the built-in methods
 from .methods.ccp_subproblem import ccp_subproblem, ccp_subproblem_path
@@ -49,6 +50,7 @@ __all__ = [
     "STATUSES",
     "SmoothingProblem",
     "available_methods",
+    "available_solvers",
     "ccp_subproblem",
     "ccp_subproblem_path",
     "get_method",

@@ -168,3 +168,19 @@ def test_a_callback_may_stop_the_run_with_stop_iteration(small, method):
 
     res = bn.smooth(sc, path, method=method, callback=cb, max_iter=40)
     assert res.status == "stopped" and len(seen) == 2 and res.safe and res.cost <= res.initial_cost
+
+
+def test_available_solvers_lists_what_each_method_accepts():
+    """qpsolvers' habit: the usable solvers of a method, its default first;
+    every one passes the method's own solver check, and smooth takes it."""
+    for name in bn.available_methods():
+        m = bn.get_method(name)
+        solvers = bn.available_solvers(name)
+        assert solvers, name
+        assert solvers[0].upper() == m.default_solver.upper()
+        if m.check_solver is not None:
+            assert all(m.check_solver(s) is None for s in solvers), name
+    assert "CLARABEL" in bn.available_solvers("ccp")
+    assert bn.available_solvers() == bn.available_solvers(bn.DEFAULT_METHOD)
+    with pytest.raises(bn.ValidationError, match="method"):
+        bn.available_solvers("no-such-method")

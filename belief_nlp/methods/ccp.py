@@ -106,7 +106,8 @@ def _check_solver(name: str) -> str | None:
     ok = usable_solvers()
     if name.upper() not in ok:
         if name.upper() not in cp.installed_solvers():
-            return f"{name!r} is not installed; usable installed solvers for the CCP step: {ok}"
+            return (f"{name!r} is not installed; usable installed solvers for the CCP step: {ok} "
+                    f"(bn.available_solvers('ccp'))")
         return f"{name!r} cannot solve the CCP step (it needs PSD and exponential cones); usable installed solvers: {ok}"
     return None
 

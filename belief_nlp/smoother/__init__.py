@@ -2,10 +2,11 @@
 
 from .context import Check, Outcome, SmoothingProblem
 from .driver import smooth
-from .registry import DEFAULT_METHOD, Method, Option, available_methods, get_method, register, unregister
+from .registry import (DEFAULT_METHOD, Method, Option, available_methods, available_solvers, get_method, register,
+                       unregister)
 from .result import STATUSES, IterationRecord, SmoothResult
 from .warmstart import WarmStart, warm_start
 
 __all__ = ["Check", "DEFAULT_METHOD", "IterationRecord", "Method", "Option", "Outcome", "STATUSES",
-           "SmoothResult", "SmoothingProblem", "WarmStart", "available_methods", "get_method", "register",
-           "smooth", "unregister", "warm_start"]
+           "SmoothResult", "SmoothingProblem", "WarmStart", "available_methods", "available_solvers", "get_method",
+           "register", "smooth", "unregister", "warm_start"]

@@ -19,7 +19,11 @@ from typing import Any, Callable
 
 from ..errors import ValidationError
 
-__all__ = ["DEFAULT_METHOD", "Option", "Method", "register", "available_methods", "get_method", "resolve_method"]
+__all__ = ["DEFAULT_METHOD", "Option", "Method", "register", "available_methods", "available_solvers", "get_method",
+           "resolve_method"]
+
+# CasADi nlpsol plug-ins a method may run (the ones CasADi's wheels can ship)
+_NLP_SOLVERS = ("ipopt", "fatrop", "uno", "madnlp", "sqpmethod", "blocksqp", "knitro", "snopt", "worhp", "bonmin")
 
 #: The method used when none is named (``smooth``, the CLI's ``--method``, the demo).
 DEFAULT_METHOD = "auto"
@@ -179,6 +183,37 @@ def available_methods() -> list[str]:
         names.remove(DEFAULT_METHOD)
         names.insert(0, DEFAULT_METHOD)
     return names
+
+
+def available_solvers(method: str | Method = DEFAULT_METHOD) -> list[str]:
+    """The solvers ``method`` can use on this machine (qpsolvers' habit).
+
+    Parameters
+    ----------
+    method : str or Method, optional
+        A name from :func:`available_methods` (default :data:`DEFAULT_METHOD`).
+
+    Returns
+    -------
+    list of str
+        Installed solvers the method accepts for ``smooth(..., solver=...)``,
+        its default first: for ``ccp`` the CVXPY solvers with PSD and
+        exponential cones, for the NLP methods the CasADi plug-ins present.
+        A method that names no solver gives [].
+    """
+    m = resolve_method(method)
+    if m.check_solver is None:
+        return [m.default_solver] if m.default_solver else []
+    import casadi as ca
+
+    from ..methods.ccp import usable_solvers
+
+    names = list(usable_solvers()) + [n for n in _NLP_SOLVERS if ca.has_nlpsol(n)]
+    ok = [n for n in names if m.check_solver(n) is None]
+    d = m.default_solver
+    if d is not None:
+        ok.sort(key=lambda n: n.upper() != d.upper())
+    return ok
 
 
 def get_method(name: str) -> Method:
