@@ -184,3 +184,22 @@ def test_available_solvers_lists_what_each_method_accepts():
     assert bn.available_solvers() == bn.available_solvers(bn.DEFAULT_METHOD)
     with pytest.raises(bn.ValidationError, match="method"):
         bn.available_solvers("no-such-method")
+
+
+def test_method_options_as_a_dict_like_scipy():
+    """options={...} means the same as the keywords; a clash or a non-dict is named."""
+    from belief_nlp.smoother.driver import _merge_options
+
+    assert _merge_options({"options": {"rho": 2.0}, "monotone_tol": 1e-6}) == {"rho": 2.0, "monotone_tol": 1e-6}
+    assert _merge_options({"rho": 2.0}) == {"rho": 2.0}
+    with pytest.raises(bn.ValidationError, match="options"):
+        _merge_options({"options": {"rho": 2.0}, "rho": 3.0})
+    with pytest.raises(bn.ValidationError, match="options"):
+        _merge_options({"options": [("rho", 2.0)]})
+    sc = bn.load_scenario("paper-multi")
+    path = bn.plan(sc, n_nodes=150, seed=0, noise="per_step").path
+    with pytest.raises(bn.ValidationError, match="no_such_option"):
+        bn.smooth(sc, path, method="ccp", options={"no_such_option": 1})
+    a = bn.smooth(sc, path, method="ccp", max_iter=2, options={"monotone_tol": 1e-6})
+    b = bn.smooth(sc, path, method="ccp", max_iter=2, monotone_tol=1e-6)
+    assert a.cost == b.cost

@@ -167,7 +167,8 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
         continuous-time bound is reported in ``verification``).
     **options
         The method's own options (``get_method(name).options`` documents
-        them). CCP-only options such as ``constraints`` or ``hook`` need
+        them), as keywords or, as with scipy, in one ``options={...}``
+        dict. CCP-only options such as ``constraints`` or ``hook`` need
         ``method="ccp"``.
 
     Returns
@@ -197,7 +198,7 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
     path = as_path(path)
     m = resolve_method(method)
     _check_args(max_iter, tol, alpha, time_limit, K, solver_options, callback)
-    opts = m.validate(options)
+    opts = m.validate(_merge_options(options))
     budget = _budget(scenario, risk, allocation, risk_kind)
     if solver is not None and not isinstance(solver, str):
         raise ValidationError("solver", f"must be a solver name, got {type(solver).__name__}")
@@ -228,6 +229,20 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
         raise ValidationError("method", f"{m.name!r} returned {outcome!r}; a method returns an Outcome "
                                         f"with a status from {sorted(STATUSES)}")
     return _finish(problem, outcome, m, t_setup)
+
+
+def _merge_options(options: dict) -> dict:
+    """The method's options from keywords and, scipy's habit, an ``options={...}`` dict."""
+    options = dict(options)
+    extra = options.pop("options", None)
+    if extra is None:
+        return options
+    if not isinstance(extra, dict):
+        raise ValidationError("options", f"must be a dict of the method's options, got {type(extra).__name__}")
+    both = sorted(set(extra) & set(options))
+    if both:
+        raise ValidationError("options", f"{both} given both as keywords and in options={{...}}")
+    return {**extra, **options}
 
 
 def _budget(scenario: Scenario, risk: Any, allocation: Any, kind: Any) -> RiskBudget | None:
