@@ -74,6 +74,10 @@ def load_path_file(file: str | os.PathLike, field: str = "path") -> tuple[Belief
             raise ValidationError(field, f"{file}: not an NPZ file: {exc}") from None
         if "header" in names:
             return _path_of_plan(_plan_result_cls().load(file), file, field)
+        if "smooth_header" in names:
+            from .smoother.result import SmoothResult
+
+            return SmoothResult.load(file).path, {"source": str(file), "kind": "smooth result"}
         return BeliefPath.load(file), {"source": str(file), "kind": "path"}
     data = load_json(file, field)          # size, nesting and syntax limits: our own error, one line
     if isinstance(data, dict) and str(data.get("format", "")).startswith("belief_nlp.PlanResult"):

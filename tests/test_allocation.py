@@ -216,3 +216,21 @@ def test_verify_judges_a_budgeted_result_at_its_own_levels(setting, results):
     assert np.min(r.risk.levels) < sc.chi2                  # some pair spends more than the paper's level allows
     assert bn.verify(sc, r).safe                            # the result carries its levels and budget
     assert not bn.verify(sc, r.path, certificates=r.certificates).safe     # the bare path at the fixed level is not
+
+
+def test_result_saves_as_npz_and_smooth_reads_it(setting, results, tmp_path):
+    """SmoothResult.save('.npz') as plans and paths do: reloads equal (the
+    allocation and the certificates included) and is a path file for smooth."""
+    sc, _ = setting
+    r = results["ipopt"]
+    f = r.save(tmp_path / "r.npz")
+    back = bn.SmoothResult.load(f)
+    assert back == r and np.array_equal(back.certificates, r.certificates)
+    assert np.array_equal(back.risk.levels, r.risk.levels)
+    again = bn.smooth(sc, f, method="ipopt", K=K, alpha=0.1, risk=BUDGET, max_iter=3)
+    assert np.allclose(again.path.x[0], r.path.x[0]) and again.safe
+    with pytest.raises(ValidationError, match="filename"):
+        r.save(tmp_path / "r.txt")
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(bn.ScenarioFileError):
+        bn.SmoothResult.load(tmp_path / "bad.npz")

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from .._limits import load_json
+from .._limits import check_npz, load_json, parse_document
 from ..errors import ScenarioFileError, ValidationError
 from ..allocation import RiskAllocation
 from ..path import BeliefPath
@@ -29,6 +29,27 @@ STATUSES = {
     "above_start": "the method's answer cost more than the warm start (the warm start is returned)",
     "stopped": "stopped by the callback (best feasible iterate returned)",
 }
+
+
+def _load_npz(filename: Path) -> dict:
+    """The document of a result NPZ written by :meth:`SmoothResult.save`."""
+    import zipfile
+    import zlib
+
+    check_npz(filename, "filename")
+    try:
+        with np.load(filename, allow_pickle=False) as z:
+            header = z["smooth_header"]
+            cert = z["certificates"] if "certificates" in z.files else None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise ScenarioFileError("filename", f"{str(filename)[:200]}: not a smoothing-result NPZ file: "
+                                            f"{str(exc)[:200]}") from None
+    if header.ndim != 0 or header.dtype.kind != "U":
+        raise ValidationError("result", "the NPZ header must be a single string")
+    data = parse_document(str(header), "json", f"{str(filename)[:200]} (header)", "filename")
+    if isinstance(data, dict):
+        data["certificates"] = None if cert is None else cert
+    return data
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -202,21 +223,36 @@ class SmoothResult:
         return out
 
     def save(self, filename: str | Path) -> Path:
-        """Write as JSON (``.json``); :meth:`load` reads it back equal."""
+        """Write as ``.json`` (one document) or ``.npz`` (the certificates as an
+        array, the rest as a JSON header, as plans do); :meth:`load` reads
+        either back equal."""
         filename = Path(filename)
-        if filename.suffix != ".json":
-            raise ValidationError("filename", f"smoothing results are saved as .json, got {filename.suffix!r}")
+        if filename.suffix not in (".json", ".npz"):
+            raise ValidationError("filename", f"smoothing results are saved as .json or .npz, got {filename.suffix!r}")
+        data = self.to_dict()
         try:
-            filename.write_text(json.dumps(self.to_dict(), default=float))
+            if filename.suffix == ".json":
+                filename.write_text(json.dumps(data, default=float))
+            else:
+                cert = data.pop("certificates")
+                arrays = {"smooth_header": np.array(json.dumps(data, default=float))}
+                if cert is not None:
+                    arrays["certificates"] = np.asarray(cert, float)
+                np.savez_compressed(filename, **arrays)
         except OSError as exc:
             raise ScenarioFileError("filename", f"cannot write {str(filename)[:200]}: {exc.strerror or exc}") from None
         return filename
 
     @classmethod
     def load(cls, filename: str | Path) -> "SmoothResult":
-        """Read a result written by :meth:`save` (file limits as :meth:`BeliefPath.load`);
-        file faults raise :class:`ScenarioFileError`, bad contents :class:`ValidationError`."""
-        data = load_json(filename, "filename")
+        """Read a result written by :meth:`save`, JSON or NPZ (file limits as
+        :meth:`BeliefPath.load`); file faults raise :class:`ScenarioFileError`,
+        bad contents :class:`ValidationError`."""
+        filename = Path(filename)
+        if filename.suffix == ".npz":
+            data = _load_npz(filename)
+        else:
+            data = load_json(filename, "filename")
         if not isinstance(data, dict) or not {"path", "history"} <= set(data):
             raise ValidationError("result", "not a smoothing result (needs 'path' and 'history')")
         data = dict(data)
