@@ -128,8 +128,8 @@ def test_other_named_planners(sc, name):
     assert res.planner == name
     if res.success:       # time-bounded: a miss is reported, never an unsafe path
         assert bn.verify(sc, res.path).safe and res.alpha == 1.0
-    else:
-        assert "no exact solution" in res.message
+    else:                 # no path in time, or a mean path no sensing can make safe (CPU-dependent)
+        assert "no exact solution" in res.message or "cannot carry a safe belief" in res.message
 
 
 # -------------------------------------------------------------------- errors
