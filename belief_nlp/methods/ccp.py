@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import ValidationError
 from ..model import BeliefModel, Layout
 from ..model.cache import MEMORY, DiskCache, problem_key
-from ..model.cvxpy_form import CompiledProblem, compile_problem
+from ..model.cvxpy_form import CompiledProblem, compile_problem, usable_solvers
 from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Method, Option, register
@@ -81,22 +81,6 @@ def solver_cascade(solver: str, options: dict | None = None, budget: bool = Fals
     for name in usable:
         if all(n != name for n, _, _ in out):
             out.append((name, "defaults", {}))
-    return out
-
-
-def usable_solvers() -> list[str]:
-    """Installed CVXPY solvers that take PSD and exponential cones (the CCP step needs both)."""
-    import cvxpy as cp
-    from cvxpy.reductions.solvers.defines import SOLVER_MAP_CONIC
-
-    out = []
-    for name in cp.installed_solvers():
-        s = SOLVER_MAP_CONIC.get(name)
-        if s is None:
-            continue
-        kinds = {c.__name__ for c in s.SUPPORTED_CONSTRAINTS}
-        if {"SOC", "ExpCone"} <= kinds and kinds & {"PSD", "SvecPSD"}:
-            out.append(name)
     return out
 
 

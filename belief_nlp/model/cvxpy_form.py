@@ -26,7 +26,7 @@ import scipy.sparse as sp
 from .data import Layout
 from .doc import ConvexForm, StepLayout
 
-__all__ = ["AffineSplit", "split_affine", "CompiledProblem", "compile_problem"]
+__all__ = ["AffineSplit", "split_affine", "CompiledProblem", "compile_problem", "usable_solvers"]
 
 
 @dataclass
@@ -250,3 +250,19 @@ def compile_problem(form: ConvexForm) -> CompiledProblem:
     x_ref = cp.Parameter((form.layout.data.K + 1, form.layout.data.d), name="x_ref")
     return CompiledProblem(form.layout, problem, z, x_ref, cons, params.params, params.function(), params.sizes,
                            objective)
+
+
+def usable_solvers() -> list[str]:
+    """Installed CVXPY solvers that take PSD and exponential cones (the CCP step needs both)."""
+    import cvxpy as cp
+    from cvxpy.reductions.solvers.defines import SOLVER_MAP_CONIC
+
+    out = []
+    for name in cp.installed_solvers():
+        s = SOLVER_MAP_CONIC.get(name)
+        if s is None:
+            continue
+        kinds = {c.__name__ for c in s.SUPPORTED_CONSTRAINTS}
+        if {"SOC", "ExpCone"} <= kinds and kinds & {"PSD", "SvecPSD"}:
+            out.append(name)
+    return out

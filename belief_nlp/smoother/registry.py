@@ -206,7 +206,7 @@ def available_solvers(method: str | Method = DEFAULT_METHOD) -> list[str]:
         return [m.default_solver] if m.default_solver else []
     import casadi as ca
 
-    from ..methods.ccp import usable_solvers
+    from ..model.cvxpy_form import usable_solvers
 
     names = list(usable_solvers()) + [n for n in _NLP_SOLVERS if ca.has_nlpsol(n)]
     ok = [n for n in names if m.check_solver(n) is None]
