@@ -7,7 +7,9 @@ K = 40 (S40); IG-RRT* with N = 500 nodes and per-step noise. Every method
 smooths the same warm start (a WarmStart at K). Per case:
 
 * ``ccp`` (max_iter 100, tol 1e-5): status, iterations, wall and solver time,
-  which cascade entry answered each step;
+  which cascade entry answered each step, how many steps were extrapolated;
+* ``ccp-plain``: the same without the extrapolated linearisation point
+  (``accelerate=False``);
 * ``ipopt``, ``auto`` and ``auto`` with ``ccp_polish=10``: status, cost, wall;
 * with ``--check``: a second CCP run whose hook solves every step's problem
   (parameters set) with the library's Clarabel settings, Clarabel's defaults
@@ -74,7 +76,9 @@ def run_case(case: dict) -> dict:
     for method in ("ccp", "ipopt"):            # builds (CVXPY compile, NLP) are cached: time none of them
         bn.smooth(sc, ws, method=method, alpha=a, max_iter=1)
     runs = {}
-    for name, method, opts in (("ccp", "ccp", {"max_iter": 100, "tol": 1e-5}), ("ipopt", "ipopt", {}),
+    for name, method, opts in (("ccp", "ccp", {"max_iter": 100, "tol": 1e-5}),
+                               ("ccp-plain", "ccp", {"max_iter": 100, "tol": 1e-5, "accelerate": False}),
+                               ("ipopt", "ipopt", {}),
                                ("auto", "auto", {}), ("auto+polish", "auto", {"ccp_polish": 10})):
         t = time.perf_counter()
         r = bn.smooth(sc, ws, method=method, alpha=a, **opts)
@@ -82,6 +86,7 @@ def run_case(case: dict) -> dict:
         rec = {"status": r.status, "nit": r.nit, "cost": r.cost, "initial_cost": r.initial_cost, "wall": wall,
                "safe": bool(r.safe), "method": r.method}
         if method == "ccp":
+            rec["extrapolated"] = sum("extrapolated" in str(s["solver"]) for s in r.stats.get("steps", []))
             steps = r.stats.get("steps", [])
             rec["solve_time"] = r.stats.get("solve_time")
             rec["answered_by"] = [s["solver"] for s in steps]
@@ -113,7 +118,7 @@ def summarise(records: list[dict]) -> dict:
     for K in sorted({r["K"] for r in ok}):
         rows = [r for r in ok if r["K"] == K]
         best = {id(r): min(v["cost"] for v in r["runs"].values() if v["safe"]) for r in rows}
-        for m in ("ccp", "ipopt", "auto", "auto+polish"):
+        for m in ("ccp", "ccp-plain", "ipopt", "auto", "auto+polish"):
             v = [r["runs"][m] for r in rows]
             table[f"K{K}/{m}"] = {
                 "cases": len(v),
@@ -127,6 +132,9 @@ def summarise(records: list[dict]) -> dict:
             }
         ratio = [r["runs"]["ccp"]["wall"] / r["runs"]["ipopt"]["wall"] for r in rows]
         table[f"K{K}/ccp_over_ipopt_wall_median"] = float(np.median(ratio))
+        table[f"K{K}/ccp_over_plain_wall_median"] = float(np.median(
+            [r["runs"]["ccp"]["wall"] / r["runs"]["ccp-plain"]["wall"] for r in rows]))
+        table[f"K{K}/ccp_steps_extrapolated"] = int(sum(r["runs"]["ccp"]["extrapolated"] for r in rows))
         pol = [(r["runs"]["auto+polish"]["cost"], r["runs"]["auto"]["cost"], r["runs"]["auto+polish"]["wall"],
                 r["runs"]["auto"]["wall"]) for r in rows]
         table[f"K{K}/polish"] = {

@@ -141,7 +141,9 @@ def _plan_and_smooth(run: _Run, sc) -> tuple[dict[str, Any], str | None]:
         return entry, f"alpha = {_fmt_alpha(alpha)}: planning failed: {pres.message}"
     t0 = time.perf_counter()
     try:
-        sres = _smooth(run, sc, pres.path, a.method, keep_iterates=a.gif, label=label)
+        # the paper's CCP steps are plain ones (no extrapolated linearisation point)
+        paper = {"accelerate": False} if a.method == PAPER_METHOD and not a.converged else None
+        sres = _smooth(run, sc, pres.path, a.method, keep_iterates=a.gif, label=label, options=paper)
     except BeliefNLPError as exc:
         if isinstance(exc, ValidationError):
             raise

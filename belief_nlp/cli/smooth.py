@@ -83,7 +83,8 @@ def _cmd_smooth(run: _Run) -> int:
     return EXIT_OK
 
 
-def _smooth(run: _Run, sc, path, method: str, *, keep_iterates: bool = False, label: str = ""):
+def _smooth(run: _Run, sc, path, method: str, *, keep_iterates: bool = False, label: str = "",
+            options: dict | None = None):
     from ..smoother import get_method, smooth
 
     a = run.args
@@ -98,7 +99,8 @@ def _smooth(run: _Run, sc, path, method: str, *, keep_iterates: bool = False, la
             budget["allocation"] = a.allocation
     try:
         res = smooth(sc, path, method=method, K=K, max_iter=a.max_iter, tol=a.tol, solver=a.solver,
-                     time_limit=a.time_limit, keep_iterates=keep_iterates, progress=not run.quiet, **budget)
+                     time_limit=a.time_limit, keep_iterates=keep_iterates, progress=not run.quiet, **budget,
+                     **(options or {}))
     except ImportError as exc:  # a method whose module is not installed
         raise BeliefNLPError(f"method {method!r} is not available in this installation: {exc}") from None
     log.info("%s%s: %s, cost %.6g after %d iterations in %.1f s", label, res.method.upper(), res.status,

@@ -7,6 +7,15 @@ answer's priors are re-derived by the Kalman recursion (Lemma 2), the point
 is checked exactly by the driver's shared check, and taken when it is safe
 and does not raise the cost.
 
+Acceleration (``accelerate=True``, the default): from the second step on,
+the step is first linearised at the extrapolated point y = z + beta (z - z_prev)
+(Nesterov's momentum sequence, as in accelerated DC algorithms). Every
+majorant of the step is a global upper bound whatever the linearisation
+point, so the step's feasible set is an inner approximation of the true one
+at y too and its answer is exactly safe even when y is not; it is taken when
+it lowers the cost, else the plain step at z follows and the momentum
+restarts (docs/numerics.md, "Accelerated CCP").
+
 Guarantees: every accepted iterate is exactly safe; the cost never
 increases. A step is solved along a cascade of conic solvers and settings
 (:func:`solver_cascade`): a failed or inaccurate solve, and an answer that
@@ -145,6 +154,23 @@ def initial_rho(model: BeliefModel, z: Layout) -> np.ndarray:
     return step_scale / np.maximum(vnorm, 1e-6)
 
 
+def _extrapolate(model: BeliefModel, z: Layout, z_prev: Layout, beta: float) -> Layout:
+    """The point y = z + beta (z - z_prev) to linearise at (accelerated CCP): S
+    projected on the PSD cone, lam on lam >= 0, levels into their bounds and Q
+    rolled out from S by the Kalman recursion, so Y~ is positive definite."""
+    D = model.data
+    y = z.copy()
+    y.x[1:] = z.x[1:] + beta * (z.x[1:] - z_prev.x[1:])
+    S = z.S[1:] + beta * (z.S[1:] - z_prev.S[1:])
+    w, V = np.linalg.eigh(S)
+    y.S[1:] = (V * np.maximum(w, 0.0)[:, None, :]) @ np.swapaxes(V, -1, -2)
+    y.lam = np.maximum(z.lam + beta * (z.lam - z_prev.lam), 0.0)
+    if z.tau is not None:
+        lo, hi = D.level_bounds
+        y.tau = np.clip(z.tau + beta * (z.tau - z_prev.tau), lo, hi)
+    return model.tighten(y)
+
+
 def _adapt_rho(model: BeliefModel, z: Layout, z_new: Layout, rho_s: np.ndarray, rho_e: np.ndarray):
     """Weights for the next step from the step just taken (any rho > 0 is valid)."""
     A = model.data.A
@@ -242,7 +268,7 @@ def _checked(status: str, zv: np.ndarray | None, t: float, n: int, step: Compile
 
 def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | None = None,
         cache_dir: str | Path | bool | None = None, constraints: Callable | None = None,
-        hook: Callable | None = None, _fail_at: int | None = None, _start: Layout | None = None) -> Outcome:
+        hook: Callable | None = None, accelerate: bool = True, _fail_at: int | None = None, _start: Layout | None = None) -> Outcome:
     """CCP from the problem's start (see the module doc and :data:`METHOD`).
 
     ``_start`` (for composite methods): continue from this exactly safe point
@@ -270,45 +296,71 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     stats = {"compile": origin, "build_time": build_time, "solver_iterations": 0, "return_status": "",
              "iter_count": 0, "solve_time": 0.0, "cpu_time": 0.0, "steps": []}
     cascade = solver_cascade(solver, problem.solver_options, budget=problem.model.data.budget is not None)
+    z_prev, t_mom = None, 1.0
     cpu0 = time.process_time()
     for it in range(first, problem.max_iter + 1):
         if problem.out_of_time():
             status, message = "time_limit", STATUSES["time_limit"]
             break
         t_it = time.perf_counter()
-        step.set_point(z, rho_s, rho_e)
-        if hook is not None:
-            extra = hook(step, it)
-            if extra:
-                step = step.with_constraints(extra)
-                step.set_point(z, rho_s, rho_e)
-        answers = _StepAnswers(step, cascade, problem, fail=_fail_at is not None and it >= _fail_at)
-        taken, refused = None, None
-        while (ans := answers.next()) is not None:
-            name, sstat, zv = ans
-            try:
-                z_raw = step.layout.extract(zv, z)
-                kgap = model.kalman_relative_gap(z_raw)
-                z_new = model.tighten(z_raw)
-            except (np.linalg.LinAlgError, ValueError, FloatingPointError):  # degenerate: try the next answer
-                answers.attempts[-1]["status"] += " (degenerate answer)"
-                continue
-            chk = problem.check(z_new)
-            if not chk.safe:
-                chk = problem.repair(chk) or chk
-                sstat = f"{sstat}+repaired" if chk.safe else sstat
-            c_new, ctrl, info = model.cost(chk.point)
-            if not chk.safe:
-                refused = ("infeasible_iterate", name, sstat, chk, c_new, ctrl, info, kgap,
-                           f"clearance margin {chk.margin:.3g} and target margin {chk.target:.3g}")
-            elif not c_new <= cost * (1 + monotone_tol) + 1e-12:     # NaN fails too
-                refused = ("non_monotone", name, sstat, chk, c_new, ctrl, info, kgap,
-                           f"cost {cost:.8g} -> {c_new:.8g}")
-            else:
-                taken = (name, sstat, chk, c_new, ctrl, info, kgap)
+        taken, refused, attempts, stime, sit = None, None, [], 0.0, 0
+        # accelerated CCP: first linearise at the extrapolated point y (the step's
+        # feasible set is an inner approximation at any point, so its answer is
+        # exactly safe like any other); taken only when it lowers the cost,
+        # otherwise the plain step at z follows and the momentum restarts
+        bases = [(z, cascade)]
+        t_next = 0.5 * (1 + np.sqrt(1 + 4 * t_mom**2))
+        if accelerate and z_prev is not None:
+            beta = (t_mom - 1) / t_next
+            if beta > 0:
+                bases.insert(0, (_extrapolate(model, z, z_prev, beta), cascade[:1]))
+        for base, entries in bases:
+            step.set_point(base, rho_s, rho_e)
+            if hook is not None:
+                extra = hook(step, it)
+                if extra:
+                    step = step.with_constraints(extra)
+                    step.set_point(base, rho_s, rho_e)
+            answers = _StepAnswers(step, entries, problem, fail=_fail_at is not None and it >= _fail_at)
+            plain = base is z
+            while (ans := answers.next()) is not None:
+                name, sstat, zv = ans
+                try:
+                    z_raw = step.layout.extract(zv, base)
+                    kgap = model.kalman_relative_gap(z_raw)
+                    z_new = model.tighten(z_raw)
+                except (np.linalg.LinAlgError, ValueError, FloatingPointError):  # degenerate: try the next answer
+                    answers.attempts[-1]["status"] += " (degenerate answer)"
+                    continue
+                chk = problem.check(z_new)
+                if not chk.safe and plain:
+                    chk = problem.repair(chk) or chk
+                    sstat = f"{sstat}+repaired" if chk.safe else sstat
+                c_new, ctrl, info = model.cost(chk.point)
+                if not plain:
+                    if chk.safe and c_new < cost:
+                        taken = (f"{name} extrapolated", sstat, chk, c_new, ctrl, info, kgap)
+                        break
+                    answers.attempts[-1]["status"] += " (extrapolated: not taken)"
+                    continue
+                if not chk.safe:
+                    refused = ("infeasible_iterate", name, sstat, chk, c_new, ctrl, info, kgap,
+                               f"clearance margin {chk.margin:.3g} and target margin {chk.target:.3g}")
+                elif not c_new <= cost * (1 + monotone_tol) + 1e-12:     # NaN fails too
+                    refused = ("non_monotone", name, sstat, chk, c_new, ctrl, info, kgap,
+                               f"cost {cost:.8g} -> {c_new:.8g}")
+                else:
+                    taken = (name, sstat, chk, c_new, ctrl, info, kgap)
+                    break
+                log.warning("CCP iteration %d: the answer of %s is refused (%s); solving more accurately",
+                            it, name, refused[-1])
+            attempts += answers.attempts
+            stime, sit = stime + answers.solve_time, sit + answers.iterations
+            if taken is not None:
+                t_mom = t_next if not plain or len(bases) == 1 else 1.0
                 break
-            log.warning("CCP iteration %d: the answer of %s is refused (%s); solving more accurately",
-                        it, name, refused[-1])
+        answers.attempts = attempts
+        answers.solve_time, answers.iterations = stime, sit
         stime, sit = answers.solve_time, answers.iterations
         stats["solver_iterations"] += sit
         stats["iter_count"] += 1
@@ -341,7 +393,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
                               min_margin=chk.margin, kalman_gap=kgap)
         rho_s, rho_e = _adapt_rho(model, z, chk.point, rho_s, rho_e) if not rho else (rho_s, rho_e)
         rel = (cost - c_new) / max(abs(cost), 1e-300)
-        z, cost = chk.point, c_new
+        z_prev, z, cost = z, chk.point, c_new
         rec.wall_time = time.perf_counter() - t_it
         stop = problem.record(rec, z)
         if bar is not None:
@@ -389,6 +441,8 @@ METHOD = register(Method(
                               _callable_or_none),
         "hook": Option(None, "fn(step, iteration) before each solve, parameters set; may return constraints to "
                              "add for the rest of the run", _callable_or_none),
+        "accelerate": Option(True, "linearise first at an extrapolated point (Nesterov momentum); taken only "
+                                   "when it lowers the cost", lambda v: None if isinstance(v, bool) else "must be True or False"),
         "_fail_at": Option(None, "testing: make every subproblem from this iteration on fail"),
         "_start": Option(None, "composite methods: continue from this exactly safe point"),
     },
