@@ -50,7 +50,8 @@ __all__ = ["run", "compiled_step", "solver_cascade", "usable_solvers", "initial_
 
 log = logging.getLogger("belief_nlp.smoother")
 
-CHI2_MARGIN = DEFAULT_POLICY.conic      # every collision/containment row of the step asks chi2 (1 + this)
+CHI2_MARGIN = DEFAULT_POLICY.conic
+RHO_BAND = 100.0      # adapted split weights stay within this factor of the first step's (_adapt_rho)      # every collision/containment row of the step asks chi2 (1 + this)
 
 # The step's solver cascade (docs/numerics.md, "CCP solver cascade"). A step
 # takes the first answer a solver reports optimal; an inaccurate answer is
@@ -171,8 +172,14 @@ def _extrapolate(model: BeliefModel, z: Layout, z_prev: Layout, beta: float) -> 
     return model.tighten(y)
 
 
-def _adapt_rho(model: BeliefModel, z: Layout, z_new: Layout, rho_s: np.ndarray, rho_e: np.ndarray):
-    """Weights for the next step from the step just taken (any rho > 0 is valid)."""
+def _adapt_rho(model: BeliefModel, z: Layout, z_new: Layout, rho_s: np.ndarray, rho_e: np.ndarray,
+               rho0: np.ndarray):
+    """Weights for the next step from the step just taken (any rho > 0 is valid),
+    within RHO_BAND of the first step's ``rho0``: a pair whose mean or
+    certificate barely moved gives a meaningless ratio, and the weights then
+    spread over 13 decades (1.6e-7 to 5.6e6 on paper-multi), putting entries
+    that far apart into one cone of the step -- Clarabel's defaults then fail
+    (docs/numerics.md, "Conditioning of the CCP step")."""
     A = model.data.A
     dv = np.linalg.norm(np.einsum("jfd,kjf->kjd", A, z_new.lam - z.lam), axis=-1)
     out = []
@@ -180,7 +187,7 @@ def _adapt_rho(model: BeliefModel, z: Layout, z_new: Layout, rho_s: np.ndarray, 
                     (rho_e, np.linalg.norm(z_new.x[1:] - z.x[1:], axis=-1)[:, None])):
         with np.errstate(divide="ignore", invalid="ignore"):
             r = np.where(dv > 1e-9, dx / dv, rho)
-        out.append(np.clip(np.where(r > 0, r, rho), rho / 10, rho * 10))
+        out.append(np.clip(np.clip(np.where(r > 0, r, rho), rho / 10, rho * 10), rho0 / RHO_BAND, rho0 * RHO_BAND))
     return out
 
 
@@ -288,6 +295,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     first = len(problem.history)                 # 1 for a plain run; after a previous stage's records
     rho_e = np.full((D.K, D.J), float(rho)) if rho else initial_rho(model, z)
     rho_s = rho_e.copy()
+    rho0 = rho_e.copy()
     status, message = "max_iter", STATUSES["max_iter"]
     bar = problem.progress_bar("CCP")
     # the same raw keys as the NLP methods: return_status (the last subproblem's),
@@ -391,7 +399,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         name, sstat, chk, c_new, ctrl, info, kgap = taken
         rec = IterationRecord(it, c_new, ctrl, info, sstat, stime, 0.0, 0.0, sit, accepted=True,
                               min_margin=chk.margin, kalman_gap=kgap)
-        rho_s, rho_e = _adapt_rho(model, z, chk.point, rho_s, rho_e) if not rho else (rho_s, rho_e)
+        rho_s, rho_e = _adapt_rho(model, z, chk.point, rho_s, rho_e, rho0) if not rho else (rho_s, rho_e)
         rel = (cost - c_new) / max(abs(cost), 1e-300)
         z_prev, z, cost = z, chk.point, c_new
         rec.wall_time = time.perf_counter() - t_it
