@@ -21,6 +21,15 @@ Boole's inequality (:mod:`belief_nlp.risk`, ``step_time``).
 * ``allocation="uniform"``: every pair at tau = g^-1(Delta / (K J)), the
   paper's fixed-level problem at that level.
 
+``kind="continuous"`` budgets the continuous-time bound instead (touching a
+hazard at any instant, with feedback on the estimate; ``RiskBound.continuous``)
+through a per-pair surrogate: each pair's level is asked of both ends of the
+transition under the one covariance Sigma_k = P_prior_{k-1} + W_k (at least
+the state's deviation from plan anywhere in the transition), and then the
+pair's crossing probability is at most CONTINUOUS_FACTOR g(tau_kj)
+(:func:`belief_nlp.risk.continuous_surrogate`, derivation in docs/safety.md),
+so the model's budget is Delta / CONTINUOUS_FACTOR.
+
 The target containment keeps the scenario's own confidence (it is not a
 collision). The reported bound is never the model's: it is recomputed from
 the answer's certified clearances (:func:`belief_nlp.risk.path_risk`).
@@ -37,10 +46,12 @@ from scipy.special import ndtri
 from .errors import ValidationError
 from .risk import gaussian_tail
 
-__all__ = ["RiskBudget", "RiskAllocation", "tail", "level_for", "level_bounds", "ALLOCATIONS", "RISK_KINDS"]
+__all__ = ["RiskBudget", "RiskAllocation", "tail", "level_for", "level_bounds", "ALLOCATIONS", "RISK_KINDS",
+           "CONTINUOUS_FACTOR"]
 
 ALLOCATIONS = ("optimal", "uniform")
-RISK_KINDS = ("steps",)
+RISK_KINDS = ("steps", "continuous")
+CONTINUOUS_FACTOR = 3.0     # crossing probability <= 3 g(level under Sigma_k) per pair (risk.continuous_surrogate)
 # Smallest tail value a pair is modelled with, relative to Delta / (K J): below
 # it the bound is the constant g(tau_hi) (a pair far from every hazard).
 FLOOR = 1e-3
@@ -79,10 +90,13 @@ class RiskBudget:
     allocation : {"optimal", "uniform"}
         Per-pair levels chosen by the smoother (decision variables) or split
         equally over the K J pairs.
-    kind : {"steps"}
+    kind : {"steps", "continuous"}
         What the budget bounds: "steps", the probability of being inside some
-        hazard at the K + 1 step times (``RiskBound.step_time``). The
-        continuous-time bound is reported beside it, not yet budgeted.
+        hazard at the K + 1 step times (``RiskBound.step_time``);
+        "continuous", the probability of touching some hazard at any instant
+        (``RiskBound.continuous``), through the per-pair surrogate of the
+        module doc (costlier paths: each pair's level holds under a larger
+        covariance, and a pair spends up to 3 g(tau)).
     """
 
     budget: float
@@ -101,18 +115,28 @@ class RiskBudget:
             raise ValidationError("allocation", f"must be one of {ALLOCATIONS}, got {self.allocation!r:.40}")
         object.__setattr__(self, "allocation", self.allocation.lower())
         if not isinstance(self.kind, str) or self.kind.lower() not in RISK_KINDS:
-            raise ValidationError("risk_kind", f"must be one of {RISK_KINDS} (the continuous-time bound is "
-                                               f"reported, not yet budgeted), got {self.kind!r:.40}")
+            raise ValidationError("risk_kind", f"must be one of {RISK_KINDS}, got {self.kind!r:.40}")
         object.__setattr__(self, "kind", self.kind.lower())
 
+    @property
+    def model_budget(self) -> float:
+        """What the model's levels may spend, sum_kj g(tau_kj): the budget, or
+        for ``kind="continuous"`` the budget / CONTINUOUS_FACTOR."""
+        return self.budget / CONTINUOUS_FACTOR if self.kind == "continuous" else self.budget
+
+    @property
+    def factor(self) -> float:
+        """Risk a pair spends per unit of g(tau): 1, or CONTINUOUS_FACTOR."""
+        return CONTINUOUS_FACTOR if self.kind == "continuous" else 1.0
+
     def uniform_level(self, n_pairs: int) -> float:
-        """tau of the uniform allocation: g(tau) = budget / n_pairs."""
-        return float(level_for(self.budget / n_pairs))
+        """tau of the uniform allocation: g(tau) = model budget / n_pairs."""
+        return float(level_for(self.model_budget / n_pairs))
 
     def warm_level(self, n_pairs: int) -> float:
         """The first level tried for the warm start of an optimal allocation:
-        uniform at 90 % of the budget (slack for the first steps)."""
-        return float(level_for(0.9 * self.budget / n_pairs))
+        uniform at 90 % of the model budget (slack for the first steps)."""
+        return float(level_for(0.9 * self.model_budget / n_pairs))
 
 
 @dataclass(eq=False)
@@ -124,17 +148,19 @@ class RiskAllocation:
     budget : float
         Delta, the end-to-end budget.
     allocation : ndarray, shape (K, J)
-        Risk allotted to each transition-hazard pair: g(levels).
+        Risk allotted to each transition-hazard pair: g(levels) (kind
+        "continuous": CONTINUOUS_FACTOR g(levels)).
     levels : ndarray, shape (K, J)
         Each pair's confidence level tau_kj (squared Mahalanobis radius).
     bound : float
-        The certified end-to-end bound of the returned path: the Boole sum
-        of g(clearance) over its pairs, recomputed from the path
-        (:func:`belief_nlp.risk.path_risk`, ``step_time``), <= budget.
+        The certified end-to-end bound of the returned path, recomputed from
+        the path (:func:`belief_nlp.risk.path_risk`): ``step_time`` (the
+        Boole sum of g(clearance)) or, kind "continuous", ``continuous``;
+        <= budget.
     method : str
         "optimal" or "uniform".
     kind : str
-        What the budget bounds ("steps").
+        What the budget bounds ("steps" or "continuous").
     hazard_names : list of str
         Names of the J hazards (the columns).
     """

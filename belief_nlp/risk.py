@@ -46,7 +46,8 @@ from scipy.special import log_ndtr, ndtr
 from .geometry import PolytopeSet, transition_minimiser
 from .geometry.bounds import certificate_lower
 
-__all__ = ["RiskBound", "path_risk", "gaussian_tail", "crossing_probability", "RISK_STATEMENT"]
+__all__ = ["RiskBound", "path_risk", "gaussian_tail", "crossing_probability", "continuous_surrogate",
+           "surrogate_clearance", "surrogate_covariances", "RISK_STATEMENT"]
 
 RISK_STATEMENT = (
     "step_time bounds the probability that the robot is inside some hazard at one of the K + 1 step times "
@@ -233,6 +234,45 @@ def path_risk(scenario, path, certificates: np.ndarray | None = None) -> RiskBou
         clearance = np.maximum(clearance, certificate_lower(A, b, x[:-1], P[:-1], x[1:], W, cert))
         cands.append(cert)
     return RiskBound(clearance, gaussian_tail(clearance), [h.name for h in hz], (x, P, W, Pd, A, b, cands))
+
+
+def surrogate_covariances(P: np.ndarray, P_prior: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """Sigma_k = P_prior_{k-1} + W_k for k = 1..K, (K, d, d), with P_prior_0 = P_0
+    (the estimate starts at x0): the covariance under which the continuous-time
+    surrogate asks each pair's level at both ends of transition k
+    (:func:`continuous_surrogate`). ``P``, ``P_prior``: (K+1, d, d); ``W``: (K, d, d)."""
+    start = np.concatenate([P[:1], P_prior[1:-1]])
+    return start + W
+
+
+def surrogate_clearance(scenario, path) -> np.ndarray:
+    """(K, J) certified squared Mahalanobis distance of each hazard from the
+    segment [x_{k-1}, x_k] under Sigma_k (:func:`surrogate_covariances`): the
+    clearance the continuous-time surrogate asks each pair's level of."""
+    from .geometry import PolytopeSet
+
+    Sig = surrogate_covariances(path.P, path.P_prior, path.transition_noise)
+    tm = transition_minimiser(path.x[:-1], Sig, path.x[1:], np.zeros_like(Sig),
+                              PolytopeSet.build(scenario.hazards))
+    return tm.lower
+
+
+def continuous_surrogate(scenario, path, factor: float = 3.0) -> np.ndarray:
+    """(K, J) per-pair upper bounds on the continuous-time crossing probability
+    (:func:`crossing_probability`, with the estimate's offset): ``factor``
+    g(m_kj), m_kj = :func:`surrogate_clearance`.
+
+    Why (docs/safety.md, "The continuous-time surrogate"): with the hyperplane
+    v^T y = e of the pair's certificate, the crossing variable of
+    :func:`crossing_probability` satisfies
+    min_s Y(s) - e >= M + E + min(D, 0) - sqrt(s2) |G| (M = min(m0, m0 + mu) - e,
+    G standard normal: the minimum of a Brownian motion on [0, 1]); splitting on
+    the signs of D and G gives P <= Phi_bar(M / sd1) + 2 Phi_bar(M / sd) <=
+    3 Phi_bar(M / sd), sd1^2 = v0 + s2, sd^2 = v0 + vd + s2 = v^T Sigma_k v; and
+    M / sd >= sqrt(m_kj) for the hyperplane that separates the hazard from the
+    segment best. The model's continuous budget asks sum_kj g(tau_kj) <=
+    Delta / 3 with every pair's clearance under Sigma_k at least tau_kj."""
+    return np.minimum(factor * gaussian_tail(surrogate_clearance(scenario, path)), 1.0)
 
 
 def _continuous_bounds(x, P, W, Pd, A, b, lam) -> np.ndarray:

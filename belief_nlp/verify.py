@@ -276,7 +276,8 @@ def _with_certificates(report: VerificationReport, scenario: Scenario, path: Bel
 # ------------------------------------------------------------------ verify
 def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_samples: int = 101,
            n_refine: int = 41, tol: float = 1e-6, certificates: np.ndarray | None = None,
-           levels: float | np.ndarray | None = None, budget: float | None = None) -> VerificationReport:
+           levels: float | np.ndarray | None = None, budget: float | None = None,
+           risk_kind: str | None = None) -> VerificationReport:
     """Check a belief path for safety and consistency, independently of the solvers.
 
     Every transition is checked against every hazard by dense sampling of
@@ -317,8 +318,12 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
         always judged at the scenario's own chi2.
     budget : float, optional
         An end-to-end collision budget: the path is safe only when its
-        certified step-time bound (``report.risk.step_time``) is at most
-        ``budget``.
+        certified bound of kind ``risk_kind`` is at most ``budget``.
+    risk_kind : {"steps", "continuous"}, optional
+        Which bound ``budget`` limits: the step-time bound
+        (``report.risk.step_time``, the default) or the continuous-time one
+        (``report.risk.continuous``); for a result smoothed under a budget,
+        its ``risk.kind``.
 
     Returns
     -------
@@ -338,6 +343,7 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
     allocation = getattr(path, "risk", None) if not isinstance(path, BeliefPath) else None
     if levels is None and budget is None and allocation is not None and hasattr(allocation, "levels"):
         levels, budget = allocation.levels, allocation.budget      # a result smoothed under a risk budget
+        risk_kind = risk_kind or getattr(allocation, "kind", None)
     path = _as_path(path)
     n_samples = _sample_count("n_samples", n_samples)
     n_refine = _sample_count("n_refine", n_refine)
@@ -349,10 +355,11 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
     hazards = list(scenario.hazards)
     names = [h.name for h in hazards]
     levels = _levels(levels, path.K, len(hazards), scenario.chi2)
-    if budget is not None:
+    if budget is not None or risk_kind is not None:
         from .allocation import RiskBudget
 
-        budget = RiskBudget(budget).budget
+        kind = RiskBudget(budget if budget is not None else 0.1, "optimal", risk_kind or "steps").kind
+        budget = None if budget is None else RiskBudget(budget).budget
     unmeasurable = [f"path.{f} contains NaN or infinite values" for f in ("x", "P", "P_prior", "S")
                     if not np.all(np.isfinite(getattr(path, f)))]
     unmeasurable += [f"path.{f} has entries beyond {_MAX_CHECKABLE:g}; not checked" for f in ("x", "P", "P_prior", "S")
@@ -365,10 +372,12 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
             if certificates is not None:
                 report = _with_certificates(report, scenario, path, certificates, levels)
             report = replace(report, risk=path_risk(scenario, path, certificates))
-            if budget is not None and not report.risk.step_time <= budget * (1 + 1e-9):
-                report = replace(report, safe=False, problems=report.problems + [
-                    f"the certified step-time collision bound {report.risk.step_time:.4g} exceeds the budget "
-                    f"{budget:.4g}"])
+            if budget is not None:
+                bound = report.risk.continuous if kind == "continuous" else report.risk.step_time
+                if not bound <= budget * (1 + 1e-9):
+                    what = "continuous-time" if kind == "continuous" else "step-time"
+                    report = replace(report, safe=False, problems=report.problems + [
+                        f"the certified {what} collision bound {bound:.4g} exceeds the budget {budget:.4g}"])
             return report
         except np.linalg.LinAlgError as exc:  # an eigen-solver gave up: nothing is proven
             return _unmeasured_report(path, names, tol, [f"numerical failure while measuring the path: {exc}"])

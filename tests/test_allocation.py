@@ -18,7 +18,7 @@ from belief_nlp.allocation import RiskAllocation, RiskBudget, level_bounds, leve
 from belief_nlp.errors import InfeasibleStartError, ValidationError
 from belief_nlp.model import BeliefModel
 from belief_nlp.model.cvxpy_form import compile_problem
-from belief_nlp.model.doc import _level_functions, level_curvature_bound
+from belief_nlp.model.doc_budget import _level_functions, level_curvature_bound
 from belief_nlp.risk import path_risk
 from belief_nlp.smoother.warmstart import warm_start
 
@@ -90,7 +90,7 @@ def test_bad_allocation_and_kind_are_named():
     with pytest.raises(ValidationError, match="allocation"):
         RiskBudget(0.1, allocation="greedy")
     with pytest.raises(ValidationError, match="risk_kind"):
-        RiskBudget(0.1, kind="continuous")
+        RiskBudget(0.1, kind="everywhere")
 
 
 def test_smooth_rejects_bad_budgets_before_any_work(setting):

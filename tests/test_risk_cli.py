@@ -95,3 +95,24 @@ def test_smooth_with_a_budget(tmp_path, capsys):
     smoothed = bn.BeliefPath.load(tmp_path / "smoothed_path.json")
     assert path_risk(bn.load_scenario("paper-multi"), smoothed).step_time <= 0.05
     assert (tmp_path / "smooth_risk.png").stat().st_size > 10_000
+
+
+def test_risk_kind_needs_a_budget_and_is_named(tmp_path, capsys):
+    code, out, err = run(["smooth", "paper-multi", "--risk-kind", "continuous", "--out", tmp_path], capsys)
+    assert code == EXIT_BAD_INPUT
+    one_line_error(err, "--risk-kind", "risk budget")
+    code, out, err = run(["smooth", "paper-multi", "--risk", "0.05", "--risk-kind", "always"], capsys)
+    assert code == EXIT_BAD_INPUT
+    one_line_error(err, "--risk-kind", "continuous")
+
+
+def test_smooth_with_a_continuous_budget(tmp_path, capsys):
+    """The budget then limits the continuous-time bound of the smoothed path,
+    recomputed here from the saved path."""
+    code, out, err = run(["smooth", "paper-multi", "--nodes", "500", "--risk", "0.05", "--risk-kind", "continuous",
+                          "--max-iter", "3", "--out", tmp_path], capsys)
+    assert code == EXIT_OK, err
+    line = next(line for line in out.splitlines() if line.startswith("smooth: risk budget"))
+    assert "continuous" in line
+    smoothed = bn.BeliefPath.load(tmp_path / "smoothed_path.json")
+    assert path_risk(bn.load_scenario("paper-multi"), smoothed).continuous <= 0.05

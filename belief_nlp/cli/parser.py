@@ -194,7 +194,7 @@ def _smoother_args(p: argparse.ArgumentParser, max_iter: int | None = None, meth
 def _risk_args(p: argparse.ArgumentParser, allocation: bool = False) -> None:
     """``--risk`` (and, for the smoother, ``--allocation``): an end-to-end
     collision-probability budget instead of one fixed level for collisions."""
-    from ..allocation import ALLOCATIONS
+    from ..allocation import ALLOCATIONS, RISK_KINDS
 
     g = p.add_argument_group("risk budget")
     g.add_argument("--risk", type=_risk_budget, default=None, metavar="DELTA",
@@ -207,6 +207,10 @@ def _risk_args(p: argparse.ArgumentParser, allocation: bool = False) -> None:
                        help="how the smoother spends the budget over the transition-hazard pairs: optimal "
                             "(per-pair levels as decision variables, the default) or uniform (DELTA split "
                             "equally); needs a budget")
+        g.add_argument("--risk-kind", choices=RISK_KINDS, default=None,
+                       help="what the smoother's budget bounds: steps (being inside a hazard at a step time, the "
+                            "default) or continuous (touching one at any instant, with feedback on the "
+                            "estimate; through a per-pair surrogate, costlier paths); needs a budget")
 
 
 def _plan_unless_path_args(p: argparse.ArgumentParser) -> None:

@@ -97,6 +97,8 @@ def _smooth(run: _Run, sc, path, method: str, *, keep_iterates: bool = False, la
         budget = {"risk": sc.risk}
         if getattr(a, "allocation", None) is not None:
             budget["allocation"] = a.allocation
+        if getattr(a, "risk_kind", None) is not None:
+            budget["risk_kind"] = a.risk_kind
     try:
         res = smooth(sc, path, method=method, K=K, max_iter=a.max_iter, tol=a.tol, solver=a.solver,
                      time_limit=a.time_limit, keep_iterates=keep_iterates, progress=not run.quiet, **budget,
@@ -176,8 +178,10 @@ def _scenario_and_path(run: _Run):
     planning failed (the files written so far listed)."""
     a = run.args
     sc = _load_scenario(a.scenario, a.alpha, getattr(a, "risk", None))      # compare has no --risk
-    if getattr(a, "allocation", None) is not None and sc.risk is None:
-        raise ValidationError("--allocation", "needs a risk budget (--risk, or a scenario file with risk)")
+    for flag in ("allocation", "risk_kind"):
+        if getattr(a, flag, None) is not None and sc.risk is None:
+            raise ValidationError(f"--{flag.replace('_', '-')}", "needs a risk budget (--risk, or a scenario file "
+                                                                 "with risk)")
     run.prepare_out()
     path, code = _obtain_path(run, sc)
     if path is None:

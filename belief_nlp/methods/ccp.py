@@ -85,6 +85,8 @@ def solver_cascade(solver: str, options: dict | None = None, budget: bool = Fals
     out = [(solver, "library" if lib else "defaults", {**lib, **(options or {})})]
     if solver in SOLVER_DEFAULTS and out[0][2]:
         out.append((solver, "defaults", {}))
+    if budget and solver in SOLVER_DEFAULTS:        # the library settings second (a defaults failure is rare)
+        out.append((solver, "library", {**SOLVER_DEFAULTS[solver], **(options or {})}))
     for name, label, opts in (("CLARABEL", "defaults", {}), ("SCS", "high accuracy", HIGH_ACCURACY["SCS"])):
         if name in usable and not any(n == name and lab == label for n, lab, _ in out):
             out.append((name, label, dict(opts)))

@@ -40,6 +40,7 @@ class ProblemData:
     bt: np.ndarray            # (N,)
     chi2_target: float = float("nan")   # containment level (the scenario's; NaN: chi2)
     budget: float | None = None         # end-to-end risk budget: per-pair levels are variables
+    continuous: bool = False            # levels asked under Sigma_k at both ends (risk.continuous_surrogate)
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.chi2_target):
@@ -47,11 +48,13 @@ class ProblemData:
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, K: int, alpha: float | None = None, chi2: float | None = None,
-                      budget: float | None = None) -> "ProblemData":
+                      budget: float | None = None, continuous: bool = False) -> "ProblemData":
         """The scaled data of ``scenario`` at horizon K. ``chi2`` overrides the
         collision level (the target keeps the scenario's); ``budget`` makes every
         pair's level a decision variable under sum_kj g(tau_kj) <= budget
-        (:mod:`belief_nlp.allocation`; ``chi2`` is then the warm start's level)."""
+        (:mod:`belief_nlp.allocation`; ``chi2`` is then the warm start's level);
+        ``continuous``: each pair's level holds at both ends of its transition
+        under Sigma_k = P_prior_{k-1} + W (the continuous-time surrogate)."""
         W = np.asarray(scenario.W, float)
         sigma = float(np.sqrt(np.max(np.linalg.eigvalsh(W))))
         hz = scenario.hazards
@@ -72,6 +75,7 @@ class ProblemData:
             A=A, b=b, face_mask=mask, hazard_names=tuple(h.name for h in hz),
             At=scenario.target.A.copy(), bt=scenario.target.b / sigma,
             chi2_target=float(scenario.chi2), budget=None if budget is None else float(budget),
+            continuous=bool(continuous),
         )
 
     @property
@@ -93,6 +97,12 @@ class ProblemData:
         from ..allocation import level_bounds
 
         return level_bounds(float(self.budget), self.n_pairs)
+
+    @cached_property
+    def T2(self) -> np.ndarray:
+        """Sigma_2^-1 = (P0 + 2 W)^-1: the continuous surrogate's information
+        matrix of transition 2 (Sigma_1^-1 is Q1)."""
+        return np.linalg.inv(self.P0 + 2 * self.W)
 
     @cached_property
     def Q1(self) -> np.ndarray:

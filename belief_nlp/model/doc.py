@@ -18,7 +18,11 @@ program. The step parameterises a level by its log risk l = log g(tau): the
 budget is then exact (exponential cones) and the level tau = h(l), convex in l
 with bounded curvature, enters both ends' h2 through a quadratic majorant
 tight at the point (:func:`_level_majorant`), so the DOC structure survives.
-The target keeps its own level ``D.chi2_target``.
+The target keeps its own level ``D.chi2_target``. Under a continuous-time
+budget (``D.continuous``) both ends of transition k use the information
+T_k <= (Q_{k-1}^-1 + W)^-1 (a variable with the Kalman LMI's form, k >= 3;
+T_1 = Q_1 and T_2 constants) and transition 1's start is a generic pair
+(:func:`belief_nlp.risk.continuous_surrogate`).
 
 Its two nonconvex pieces are concave: alpha/2 log det Y_k in the objective and
 the bilinear h(lam, x) = 2 lam^T (A x - b) inside h2. The convexification at
@@ -52,25 +56,10 @@ import numpy as np
 from . import terms
 from ..allocation import tail
 from .data import Layout, ProblemData
+from .cones import ConeFamily, _pick
+from .doc_budget import _budget_families, _level_majorant
 
 __all__ = ["ConeFamily", "ConvexForm", "StepLayout", "convex_form", "tangent"]
-
-KINDS = ("nonneg", "psd", "soc", "exp")
-
-
-@dataclass(frozen=True)
-class ConeFamily:
-    """``batch`` cones of one kind. ``expr`` stacks their entries, affine in z:
-    psd: the full n x n matrices row-major (n = ``dim``); soc: (t, y) with
-    ||y|| <= t (length ``dim``); exp: (a, b, c) with b exp(a / b) <= c; nonneg:
-    one entry per cone."""
-
-    name: str
-    kind: str
-    dim: int
-    batch: int
-    expr: ca.SX
-
 
 @dataclass
 class Blocks:
@@ -87,6 +76,7 @@ class Blocks:
     Z: np.ndarray      # (K+1, d, d) lower triangular, k >= 2 (log det epigraph)
     u: np.ndarray      # (K+1, d) k >= 2
     n: int
+    T: np.ndarray | None = None     # (K+1, d, d) symmetric, k >= 3: Sigma_k^-1 of the continuous surrogate
     ell: np.ndarray | None = None   # (K, J) step dl of the log risk l = log g(tau) per pair (budget mode)
     e: np.ndarray | None = None     # (K, J) exp(l) in units of an even share, budget / (K J)
     up: np.ndarray | None = None    # (K, J) max(l - l~, 0) epigraphs
@@ -121,26 +111,31 @@ def _blocks(D: ProblemData) -> Blocks:
     lam[:, D.face_mask] = alloc((K, int(D.face_mask.sum())))
     R_end = alloc((K, J))
     R_start = -np.ones((K, J), dtype=int)
-    R_start[1:] = alloc((K - 1, J))
+    if D.continuous:                       # every start end is a generic pair (no exact k = 1 form)
+        R_start[:] = alloc((K, J))
+    else:
+        R_start[1:] = alloc((K - 1, J))
     C = alloc(D.At.shape[0])
-    R0 = alloc(J)
+    R0 = alloc(0 if D.continuous else J)
     Z = -np.ones((K + 1, d, d), dtype=int)
     u = -np.ones((K + 1, d), dtype=int)
     li, lj = np.tril_indices(d)
     for k in range(2, K + 1):
         Z[k, li, lj] = alloc(li.size)
         u[k] = alloc(d)
+    T = sym_map(range(3, K + 1)) if D.continuous else None
     ell, e, up, dn = (alloc((K, J)) if D.budget is not None else None for _ in range(4))
-    return Blocks(x, Q, S, lam, R_end, R_start, C, R0, Z, u, counter[0], ell, e, up, dn)
+    return Blocks(x, Q, S, lam, R_end, R_start, C, R0, Z, u, counter[0], T, ell, e, up, dn)
 
 
-def _pick(z: ca.SX, idx: np.ndarray) -> ca.SX:
-    """Symbolic matrix (idx's 2-D shape) of z entries; 0 where idx < 0 (one
-    vectorised selection, no per-entry Python work)."""
-    idx = np.atleast_2d(idx)
-    n = int(z.numel())
-    flat = np.where(idx < 0, n, idx).ravel(order="F")
-    return ca.reshape(ca.vertcat(z, 0)[flat.tolist()], *idx.shape)
+def _surrogate_information(D: ProblemData, point: Layout) -> np.ndarray:
+    """(K, d, d) T_k = Sigma_k^-1 of ``point`` (T_1 = Q_1, T_k = (Q_{k-1}^-1 + W)^-1)."""
+    T = np.empty((D.K, D.d, D.d))
+    T[0] = D.Q1
+    if D.K > 1:
+        T[1:] = np.linalg.inv(np.linalg.inv(point.Q[1:-1]) + D.W)
+        T[1:] = 0.5 * (T[1:] + np.swapaxes(T[1:], -1, -2))
+    return T
 
 
 def tangent(f: ca.Function, n_lin: int | None = None) -> ca.Function:
@@ -191,72 +186,6 @@ def _rsoc(w: ca.SX, y: ca.SX) -> ca.SX:
     return ca.vertcat((w + 1) / s2, y, (w - 1) / s2)
 
 
-def _level_functions() -> ca.Function:
-    """tau~ -> (l~, h'(l~), h''(l~)) for the level as a function of the log risk,
-    h(l) = tau with g(tau) = exp(l): l~ = log g(tau~), h' = -2 s q / phi(s),
-    h'' = 2 q / phi(s) (q (1 + s^2) / phi(s) - s), s = sqrt(tau~), q = g(tau~)."""
-    tau = ca.SX.sym("tau")
-    s = ca.sqrt(tau)
-    q = 0.5 * (1 - ca.erf(s / np.sqrt(2)))
-    phi = ca.exp(-tau / 2) / np.sqrt(2 * np.pi)
-    return ca.Function("level_of_log_risk", [tau], [ca.log(q), -2 * s * q / phi,
-                                                   2 * q / phi * (q * (1 + tau) / phi - s)])
-
-
-def level_curvature_bound(budget: float) -> float:
-    """max of h''(l) = d^2 tau / dl^2 over l <= log(budget) (h'' rises with l up
-    to q ~ 0.2, then falls): the curvature of the level majorant where the log
-    risk rises. A dense grid with 5 % to spare (h is smooth; every iterate is
-    checked exactly anyway, so the bound only decides acceptance)."""
-    from scipy.special import ndtri
-    from scipy.stats import norm
-
-    q = np.geomspace(1e-16, budget, 20001)
-    s = -ndtri(q)
-    phi = norm.pdf(s)
-    hpp = 2 * q / phi * (q * (1 + s**2) / phi - s)
-    return 1.05 * float(np.max(hpp))
-
-
-def _level_majorant(D: ProblemData, B: Blocks, z: ca.SX, tau_t: ca.SX) -> tuple[ca.SX, list]:
-    """The pairs' levels as functions of their log risks l (budget mode):
-    tau = h(l) is convex in l with h'' rising in l (up to q ~ 0.2), so with
-    dl = l - l~, up >= max(dl, 0), dn >= max(-dl, 0),
-
-        tau <= tau~ + h'(l~) dl + M_up/2 up^2 + h''(l~)/2 dn^2
-
-    (M_up = :func:`level_curvature_bound`), tight at the point in value and
-    slope. Returns the affine part (K, J) and the two quadratic parts' roots."""
-    K, J = D.K, D.J
-    dl, up, dn = (_pick(z, M) for M in (B.ell, B.up, B.dn))
-    _, h1, h2 = _level_functions().map(K * J)(tau_t.T)
-    h1, h2 = (ca.reshape(v, J, K).T for v in (h1, h2))
-    tt = ca.reshape(tau_t, J, K).T
-    aff = tt + h1 * dl
-    m_up = np.sqrt(level_curvature_bound(float(D.budget)))
-    return aff, [m_up * up, ca.sqrt(h2) * dn]
-
-
-def _budget_families(D: ProblemData, B: Blocks, z: ca.SX, tau_t: ca.SX) -> list[ConeFamily]:
-    """sum_kj exp(l_kj) <= budget exactly (exponential cones, in units of an
-    even share s = budget / (K J): exp(l - log s) <= e, sum e / (K J) <= 1), the epigraphs up/dn of the
-    log risk's step from the point, and log(floor) <= l <= log(budget): a pair's
-    level stays in [tau_lo, tau_hi] (:func:`belief_nlp.allocation.level_bounds`).
-    The step stays a DPP cone program."""
-    tau_lo, tau_hi = D.level_bounds
-    dl, e, up, dn = (_pick(z, M.ravel()[:, None]) for M in (B.ell, B.e, B.up, B.dn))
-    n = int(dl.numel())
-    lt = _level_functions().map(n)(tau_t.T)[0].T
-    ell = lt + dl                                # the variable is the step (no large constants)
-    lb = float(np.log(tail(tau_hi)))
-    share = D.budget / n                         # e in units of an even share: O(1) where it matters
-    exp_rows = ca.vertcat(*[ca.vertcat(ell[i] - np.log(share), 1, e[i]) for i in range(n)])
-    return [ConeFamily("budget_exp", "exp", 3, n, exp_rows),
-            ConeFamily("budget_steps", "nonneg", 1, 4 * n, ca.vertcat(up - dl, up, dn + dl, dn)),
-            ConeFamily("budget_levels", "nonneg", 1, 2 * n, ca.vertcat(ell - lb, np.log(D.budget) - ell)),
-            ConeFamily("budget_total", "nonneg", 1, 1, 1 - ca.sum1(e) / n)]
-
-
 @dataclass
 class StepLayout:
     """Where the model's quantities sit in z and p: numbers only (picklable),
@@ -287,12 +216,19 @@ class StepLayout:
             out[imap[keep]] = M[keep]
         v = np.einsum("jfd,kjf->kjd", D.A, point.lam)
         Y = point.Y
-        out[B.R_end] = np.einsum("kjd,kjd->kj", v, np.linalg.solve(point.Q[1:, None], v[..., None])[..., 0])
-        if K > 1:
-            out[B.R_start[1:]] = np.einsum("kjd,kjd->kj", v[1:],
-                                           np.linalg.solve(Y[1:-1, None], v[1:, ..., None])[..., 0])
-        L0, eps0 = start_factor(D.P0)
-        out[B.R0] = np.sum((v[0] @ L0) ** 2, axis=-1) / eps0**2
+        if D.continuous:                    # both ends under T_k = Sigma_k^-1
+            T = _surrogate_information(D, point)
+            R = np.einsum("kjd,kjd->kj", v, np.linalg.solve(T[:, None], v[..., None])[..., 0])
+            out[B.R_end] = out[B.R_start] = R
+            keep = B.T >= 0
+            out[B.T[keep]] = np.concatenate([np.zeros((1, D.d, D.d)), T])[keep]
+        else:
+            out[B.R_end] = np.einsum("kjd,kjd->kj", v, np.linalg.solve(point.Q[1:, None], v[..., None])[..., 0])
+            if K > 1:
+                out[B.R_start[1:]] = np.einsum("kjd,kjd->kj", v[1:],
+                                               np.linalg.solve(Y[1:-1, None], v[1:, ..., None])[..., 0])
+            L0, eps0 = start_factor(D.P0)
+            out[B.R0] = np.sum((v[0] @ L0) ** 2, axis=-1) / eps0**2
         aYa = np.einsum("nd,nd->n", D.At, np.linalg.solve(Y[K], D.At.T).T)
         out[B.C] = 1.0 / np.sqrt(aYa)
         li, lj = np.tril_indices(D.d)
@@ -420,10 +356,17 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
     add("logdet_exp", "exp", 3, [ca.vertcat(z[int(B.u[k, i])], 1, Zk[k][i, i])
                                  for k in range(2, K + 1) for i in range(d)])
 
+    if D.continuous:
+        # continuous surrogate: T_k <= (Q_{k-1}^-1 + W)^-1 (the Kalman LMI's form, k >= 3;
+        # T_1 = Q_1 and T_2 = (P0 + 2 W)^-1 are constants)
+        add("surrogate_lmi", "psd", 2 * d, [terms.kalman_lmi(_pick(z, B.T[k]), Q[k - 1], Winv)
+                                            for k in range(3, K + 1)])
+
     # collision constraints: h1 exactly, h2 with the bilinear term convexified;
     # one pair function mapped over every (transition, hazard) end
     pair = _pair_function(d, F, len(Quad))
-    for name, ks, end in (("end", np.arange(1, K + 1), True), ("start", np.arange(2, K + 1), False)):
+    first_start = 1 if D.continuous else 2
+    for name, ks, end in (("end", np.arange(1, K + 1), True), ("start", np.arange(first_start, K + 1), False)):
         if ks.size == 0:
             continue
         kk = np.repeat(ks, J)                          # transition of each pair
@@ -435,10 +378,15 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
         R = _pick(z, (B.R_end if end else B.R_start)[kk - 1, jj][None, :])
         x = xt[:, kx.tolist()] + _pick(z, B.x[kx].T)
         ky = kk if end else kk - 1                     # information matrix at the end: Q_k or Y_{k-1}
-        Yv = _pick(z, np.concatenate(list(B.Q[ky]), axis=1))
-        if not end:
-            Yv = Yv + _pick(z, np.concatenate(list(B.S[ky]), axis=1))
-        Yc = np.concatenate([D.Q1 if k == 1 else np.zeros((d, d)) for k in ky], axis=1)
+        if D.continuous:                               # both ends: T_k
+            Yv = _pick(z, np.concatenate(list(B.T[kk]), axis=1))
+            consts = {1: D.Q1, 2: D.T2}
+            Yc = np.concatenate([consts.get(int(k), np.zeros((d, d))) for k in kk], axis=1)
+        else:
+            Yv = _pick(z, np.concatenate(list(B.Q[ky]), axis=1))
+            if not end:
+                Yv = Yv + _pick(z, np.concatenate(list(B.S[ky]), axis=1))
+            Yc = np.concatenate([D.Q1 if k == 1 else np.zeros((d, d)) for k in ky], axis=1)
         A = ca.DM(np.concatenate(list(D.A[jj]), axis=1))
         b = ca.DM(D.b[jj].T)
         r = ca.sqrt((rho_e if end else rho_s)[((kk - 1) * J + jj).tolist()]).T
@@ -455,7 +403,7 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
     # 1.9e4 times apart, docs/numerics.md "Conditioning of the CCP step")
     L0, eps0 = start_factor(D.P0)
     h2_first, h1_first = [], []
-    for j in range(J):
+    for j in range(0 if D.continuous else J):       # (continuous: transition 1's start is a generic pair)
         A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
         lam = Lam[0][j]
         R0 = z[int(B.R0[j])]
@@ -464,7 +412,7 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
         h1_first.append(terms.h1_lmi(R0, ca.mtimes(ca.DM(L0 / eps0).T, ca.mtimes(A.T, lam)), ca.DM.eye(d)))
     if Quad:
         add("start_h2", "soc", 2 + len(Quad), h2_first)
-    else:
+    elif h2_first:
         add("start_h2", "nonneg", 1, h2_first)
     add("start_h1", "psd", d + 1, h1_first)
     t1, t2 = [], []

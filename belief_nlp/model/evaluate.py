@@ -32,7 +32,10 @@ class BeliefModel:
     With ``risk`` (a :class:`belief_nlp.allocation.RiskBudget`) the collision
     level is the budget's: uniform, every pair at g^-1(Delta / (K J)); optimal,
     each pair's level a variable under the budget (``data.budget``), with the
-    uniform level at 90 % of Delta as the warm start's.
+    uniform level at 90 % of Delta as the warm start's. A continuous-time
+    budget (``risk.kind == "continuous"``) asks each pair's level at both ends
+    of its transition under Sigma_k (``data.continuous``,
+    :meth:`surrogate_information`) and spends Delta / 3 on the levels.
 
     Its CasADi functions are built once from :mod:`.terms`; the methods below
     evaluate them on a :class:`Layout` (scaled units).
@@ -47,8 +50,9 @@ class BeliefModel:
             if risk.allocation == "uniform":
                 chi2 = risk.uniform_level(n_pairs)
             else:
-                chi2, budget = risk.warm_level(n_pairs), risk.budget
-        self.data = ProblemData.from_scenario(scenario, K, alpha, chi2=chi2, budget=budget)
+                chi2, budget = risk.warm_level(n_pairs), risk.model_budget
+        continuous = risk is not None and risk.kind == "continuous"
+        self.data = ProblemData.from_scenario(scenario, K, alpha, chi2=chi2, budget=budget, continuous=continuous)
         D = self.data
         d, F = D.d, D.F
         x, xp = ca.SX.sym("x", d), ca.SX.sym("x_prev", d)
@@ -97,10 +101,37 @@ class BeliefModel:
                        _hcat(A), np.tile(D.b, (n, 1)).T)
         return out.full().reshape(n, J)
 
+    def surrogate_information(self, z: Layout) -> np.ndarray:
+        """(K, d, d) Sigma_k^-1 of the continuous-time surrogate, k = 1..K:
+        Sigma_k = P_prior_{k-1} + W = Q_{k-1}^-1 + W (k >= 2), Sigma_1 = P0 + W
+        (:func:`belief_nlp.risk.surrogate_covariances`)."""
+        D = self.data
+        T = np.empty((D.K, D.d, D.d))
+        T[0] = D.Q1
+        if D.K > 1:
+            T[1:] = sym(np.linalg.inv(np.linalg.inv(z.Q[1:-1]) + D.W))
+        return T
+
+    def segments(self, z: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The transitions as the exact checks see them, scaled units: means
+        x_{k-1} -> x_k and covariance P(s) = C_k + s V_k, (x_prev, C, x_next, V):
+        the belief's (P_{k-1}, W), or under the continuous surrogate (Sigma_k, 0)."""
+        D = self.data
+        if D.continuous:
+            Sig = np.linalg.inv(self.surrogate_information(z))
+            return z.x[:-1], sym(Sig), z.x[1:], np.zeros_like(Sig)
+        P = self.covariances(z)
+        return z.x[:-1], P[:-1], z.x[1:], np.broadcast_to(D.W, P[1:].shape).copy()
+
     def transition_margins(self, z: Layout) -> tuple[np.ndarray, np.ndarray]:
         """Theorem-1 margins (certificate values) of both ends of every
-        transition and hazard, scaled units, >= 0 is clear: (start (K, J), end (K, J))."""
+        transition and hazard, scaled units, >= 0 is clear: (start (K, J), end (K, J)).
+        Under the continuous surrogate both ends use Sigma_k."""
         D = self.data
+        if D.continuous:
+            T = self.surrogate_information(z)
+            return (self._pairs(z.x[:-1], T, z.lam, self.f_margin_inv),
+                    self._pairs(z.x[1:], T, z.lam, self.f_margin_inv))
         end = self._pairs(z.x[1:], z.Q[1:], z.lam, self.f_margin_inv)
         start = np.empty_like(end)
         start[1:] = self._pairs(z.x[1:-1], z.Y[1:-1], z.lam[1:], self.f_margin_inv)

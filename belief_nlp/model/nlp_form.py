@@ -21,7 +21,9 @@ with m = margin chi2 and m' = margin (scaled length). Under a risk budget
 (``data.budget``, :mod:`belief_nlp.allocation`) each pair's level is a
 variable tau_kj in [tau_lo, tau_hi]: its rows ask for tau_kj (1 + margin)
 instead of chi2 + m, and one more row keeps sum_kj g(tau_kj) <= budget with
-g(tau) = Phi_bar(sqrt(tau)) exactly. Why these choices and
+g(tau) = Phi_bar(sqrt(tau)) exactly. Under a continuous-time budget
+(``data.continuous``) both ends of transition k use the information
+T_k = (Q_{k-1}^-1 + W)^-1 (T_1 = Q_1) instead. Why these choices and
 the measured alternatives ("minors", "eliminated"): docs/numerics.md, "IPOPT".
 """
 
@@ -130,6 +132,12 @@ def _symmetric(v: ca.SX, tri: list, d: int) -> ca.SX:
     return M
 
 
+def _sym_inv(M: ca.SX) -> ca.SX:
+    """Inverse of a symmetric matrix expression, symmetrised."""
+    Mi = ca.inv(M)
+    return 0.5 * (Mi + Mi.T)
+
+
 def _psd_factor(S: np.ndarray) -> np.ndarray:
     """Lower Cholesky factor of the PSD part of S (a tiny jitter for S = 0)."""
     S = 0.5 * (S + S.T)
@@ -212,12 +220,19 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
     # collision constraints (Theorem 1, common lambda), ordered (k, j, start/end)
     g_col = []
     P0 = ca.DM(D.P0)
+    # continuous-time surrogate: both ends under Sigma_k = Q_{k-1}^-1 + W (Sigma_1 = P0 + W),
+    # information T_k (risk.continuous_surrogate)
+    T = [None, ca.DM(D.Q1)] + [_sym_inv(ca.inv(Q[k - 1]) + W) for k in range(2, K + 1)] if D.continuous else None
     for k in range(1, K + 1):
         for j in range(J):
             lam = ca.vertcat(Lam[offs[j]:offs[j + 1], k - 1], ca.SX.zeros(F - nf[j]))
             A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
             # the model's margins are at level chi2; a variable level moves them by chi2 - tau (1 + margin)
             shift = D.chi2 - (1 + margin) * Tau[j, k - 1] if budget else 0
+            if T is not None:
+                g_col.append(model.f_margin_inv(xs[k - 1], T[k], lam, A, b) + shift)
+                g_col.append(model.f_margin_inv(xs[k], T[k], lam, A, b) + shift)
+                continue
             if k == 1:
                 g_col.append(model.f_margin_cov(xs[0], P0, lam, A, b) + shift)
             else:

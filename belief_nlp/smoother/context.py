@@ -22,7 +22,7 @@ from ..model import BeliefModel, Layout
 from ..scenario import Scenario
 from .policy import DEFAULT_POLICY, SafetyPolicy
 from .result import IterationRecord
-from .warmstart import WarmStart, certificates
+from .warmstart import WarmStart, segment_certificates
 
 __all__ = ["Check", "Outcome", "SmoothingProblem"]
 
@@ -206,15 +206,14 @@ class SmoothingProblem:
             if np.any(z.lam < 0):      # interior-point iterates sit ~1e-8 outside lam >= 0; a proof needs lam >= 0
                 z = z.copy()
                 z.lam = np.maximum(z.lam, 0.0)
-            P = self.model.covariances(z)
-            W = np.broadcast_to(D.W, P[1:].shape)
-            tm = transition_minimiser(z.x[:-1], P[:-1], z.x[1:], W, self.hazards_scaled)
+            segments = self.model.segments(z)
+            tm = transition_minimiser(*segments, self.hazards_scaled)
             start, end = self.model.transition_margins(z)
             out = z
             bad = ~(np.minimum(start, end) >= accept)
             if np.any(bad):
                 out = z.copy()
-                lam = certificates(self.scenario, self.model.to_path(z), self.hazards) * D.sigma
+                lam = segment_certificates(*segments, self.hazards_scaled, D.chi2)
                 out.lam = np.where(bad[..., None], lam, z.lam)
                 start, end = self.model.transition_margins(out)
             lower = float(np.min(np.minimum(start, end)))
@@ -242,16 +241,15 @@ class SmoothingProblem:
             _require_finite(z)
             out = z.copy()
             out.lam = np.maximum(out.lam, 0.0)
-            P = model.covariances(out)
-            W = np.broadcast_to(D.W, P[1:].shape)
-            tm = transition_minimiser(out.x[:-1], P[:-1], out.x[1:], W, self.hazards_scaled)
+            segments = model.segments(out)
+            tm = transition_minimiser(*segments, self.hazards_scaled)
             clear = model.clearances(out)
             # a pair beyond tau_hi carries no risk to speak of: proving more would only inflate its
             # certificate (lam* grows like distance / variance) and the next step's scaling with it
             weak = ~(clear >= np.minimum(0.99 * tm.dist2, tau_hi))
             if np.any(weak):
                 level = np.maximum(np.minimum(0.999 * tm.dist2, 1.05 * tau_hi), 1e-9)
-                lam = certificates(self.scenario, model.to_path(out), self.hazards, chi2=level) * D.sigma
+                lam = segment_certificates(*segments, self.hazards_scaled, level)
                 trial = out.copy()
                 trial.lam = np.where(weak[..., None], lam, out.lam)
                 better = model.clearances(trial) > clear

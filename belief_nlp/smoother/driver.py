@@ -30,17 +30,17 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..allocation import RiskAllocation, RiskBudget
+from ..allocation import RiskAllocation, RiskBudget, tail
 from ..errors import InfeasibleStartError, ValidationError
 from ..inputs import as_path, as_scenario
 from ..model import BeliefModel, Layout
 from ..path import BeliefPath
-from ..risk import path_risk
+from ..risk import path_risk, surrogate_clearance
 from ..scenario import Scenario
 from .context import Outcome, SmoothingProblem
 from .registry import DEFAULT_METHOD, Method, resolve_method
 from .result import STATUSES, SmoothResult
-from .warmstart import WarmStart, warm_start
+from .warmstart import WarmStart, sharpened, warm_start
 
 __all__ = ["smooth"]
 
@@ -162,9 +162,12 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
         With ``risk``: per-pair levels chosen by the smoother (decision
         variables of the model; default) or Delta split equally over the K J
         transition-hazard pairs.
-    risk_kind : {"steps"}, optional
-        What the budget bounds (only the step-time bound is budgeted; the
-        continuous-time bound is reported in ``verification``).
+    risk_kind : {"steps", "continuous"}, optional
+        What the budget bounds: "steps" (default), the probability of being
+        inside a hazard at the step times; "continuous", of touching one at
+        any instant (through a per-pair surrogate, :mod:`belief_nlp.allocation`;
+        the reported bound is the exact continuous-time formula's). Both
+        bounds are always reported in ``verification``.
     **options
         The method's own options (``get_method(name).options`` documents
         them), as keywords or, as with scipy, in one ``options={...}``
@@ -259,6 +262,45 @@ def _budget(scenario: Scenario, risk: Any, allocation: Any, kind: Any) -> RiskBu
     return RiskBudget(risk, allocation, kind)
 
 
+def _warm_bound(scenario: Scenario, warm: WarmStart, budget: RiskBudget) -> float:
+    """The warm start's certified step-time bound."""
+    return path_risk(scenario, warm.path, warm.lam).step_time
+
+
+def _continuous_warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str, budget: RiskBudget,
+                           n_pairs: int) -> WarmStart:
+    """A warm start for a continuous-time budget. The surrogate asks each level
+    under Sigma_k = P_prior_{k-1} + W, which only sensing before step k - 1
+    shrinks: the step-time warm start at the budget's level, then with every
+    posterior scaled by 2^-i (more sensing everywhere) until the surrogate
+    fits -- every pair clear of the uniform level (uniform allocation), or the
+    surrogate's sum within 97 % of the budget (optimal)."""
+    if budget.allocation == "uniform":
+        base = budget.uniform_level(n_pairs)
+        warm = warm_start(scenario, path, K=K, sensing=sensing, chi2=base)
+    else:       # the highest level of the step-time ladder whose warm start exists (pairs near a hazard then
+        top = budget.warm_level(n_pairs)        # spend more of the budget, the sharpening below pays for it)
+        for base in [top * 0.9**i for i in range(13)] + [scenario.chi2]:
+            try:
+                warm = warm_start(scenario, path, K=K, sensing=sensing, chi2=base)
+                break
+            except InfeasibleStartError:
+                if base == scenario.chi2:
+                    raise
+    best = float("inf")
+    for i in range(25):
+        cand = warm if i == 0 else sharpened(scenario, warm, 0.5**i, base)
+        clear = surrogate_clearance(scenario, cand.path)
+        best = float(np.sum(budget.factor * tail(clear)))
+        if budget.allocation == "uniform" and np.all(clear >= base * (1 + 1e-3)):
+            return cand
+        if budget.allocation != "uniform" and best <= 0.97 * budget.budget:
+            return cand
+    raise InfeasibleStartError(f"no warm start meets the continuous-time risk budget {budget.budget:g} (with all "
+                               f"the sensing, the surrogate spends {best:.3g}: the means pass too close to a "
+                               f"hazard for the noise W; give a larger budget or a path further from the hazards)")
+
+
 def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str,
                 fallback: bool, budget: RiskBudget | None = None) -> tuple[WarmStart, dict]:
     """The warm start at K, or -- when K is infeasible and fallback allowed -- at
@@ -270,6 +312,8 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
         if budget is None:
             return warm_start(scenario, path, K=k, sensing=sensing)
         n_pairs = (path.K if k is None else k) * J
+        if budget.kind == "continuous":
+            return _continuous_warm_start(scenario, path, k, sensing, budget, n_pairs)
         if budget.allocation == "uniform":
             levels = [budget.uniform_level(n_pairs)]
         else:   # the uniform level at 90 % of the budget, then lower ones while the certified sum fits
@@ -283,7 +327,7 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
             except InfeasibleStartError as exc:
                 err = err or exc
                 continue
-            bound = path_risk(scenario, warm.path, warm.lam).step_time
+            bound = _warm_bound(scenario, warm, budget)
             if budget.allocation == "uniform" or bound <= 0.97 * budget.budget:
                 return warm
             best = bound
@@ -365,18 +409,18 @@ def _risk_args(model: BeliefModel, z: Layout) -> dict:
     budget = model.risk_budget
     if budget is None:
         return {}
-    return {"levels": z.tau if D.budget is not None and z.tau is not None else D.chi2, "budget": budget.budget}
+    return {"levels": z.tau if D.budget is not None and z.tau is not None else D.chi2, "budget": budget.budget,
+            "risk_kind": budget.kind}
 
 
 def _allocation(problem: SmoothingProblem, z: Layout, report) -> RiskAllocation | None:
     """The returned path's :class:`RiskAllocation` (None without a budget)."""
-    from ..allocation import tail
-
     model = problem.model
     budget = model.risk_budget
     if budget is None:
         return None
     D = model.data
     levels = np.array(z.tau if D.budget is not None and z.tau is not None else np.full((D.K, D.J), D.chi2), float)
-    return RiskAllocation(budget.budget, tail(levels), levels, float(report.risk_bound), budget.allocation,
+    bound = report.risk.continuous if budget.kind == "continuous" else report.risk_bound
+    return RiskAllocation(budget.budget, budget.factor * tail(levels), levels, float(bound), budget.allocation,
                           budget.kind, tuple(h.name for h in problem.scenario.hazards))

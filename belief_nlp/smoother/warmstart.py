@@ -51,7 +51,8 @@ from ..path import BeliefPath
 from ..scenario import Scenario
 from ..verify import VerificationReport, verify
 
-__all__ = ["WarmStart", "warm_start", "resample_means", "allocate_steps"]
+__all__ = ["WarmStart", "warm_start", "resample_means", "allocate_steps", "sharpened", "certificates",
+           "segment_certificates"]
 
 # Clearance margin required of the start point, relative to chi2, so that
 # solver rounding in the first subproblem never meets an active constraint
@@ -320,6 +321,22 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
     return WarmStart(ws_path, lam, report, halvings)
 
 
+def sharpened(scenario: Scenario, warm: WarmStart, factor: float, chi2: float) -> WarmStart:
+    """``warm`` with every posterior after the start scaled by ``factor`` (< 1:
+    more sensing at every step; P_k <= P_{k-1} + W keeps holding, every
+    ellipse shrinks, so the path stays safe at ``chi2``), certificates and
+    verification redone. The continuous-time budget's warm start uses it: its
+    surrogate covariances P_prior_{k-1} + W shrink only with earlier sensing."""
+    P = warm.path.P.copy()
+    P[1:] *= factor
+    path = BeliefPath.from_covariances(warm.path.x, P, W=scenario.W, noise="per_step", meta=warm.path.meta)
+    lam = certificates(scenario, path, chi2=chi2)
+    report = verify(scenario, path, levels=chi2)
+    if not report.safe:
+        raise InfeasibleStartError(f"warm start failed verification: {report.summary()}")
+    return WarmStart(path, lam, report, warm.added_sensing, warm.allocation)
+
+
 @lru_cache(maxsize=16)
 def _margin_parts(F: int, d: int) -> ca.Function:
     """(x, P, lam, A, b) -> (quad(A^T lam, P), bilinear(lam, x, A, b)) for one pair,
@@ -345,12 +362,20 @@ def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | No
     solver away from the boundary of every cone at once.
     """
     hazards = hazards or PolytopeSet.build(scenario.hazards)
-    x0, x1 = path.x[:-1], path.x[1:]
-    P0 = path.P[:-1]
-    P1 = P0 + path.transition_noise
-    tm = transition_minimiser(x0, P0, x1, path.transition_noise, hazards, want_lam=True)
+    chi2 = scenario.chi2 if chi2 is None else chi2
+    return segment_certificates(path.x[:-1], path.P[:-1], path.x[1:], path.transition_noise, hazards, chi2, margin)
+
+
+def segment_certificates(x0: np.ndarray, P0: np.ndarray, x1: np.ndarray, Wn: np.ndarray, hazards: PolytopeSet,
+                         chi2: float | np.ndarray, margin: float = _START_MARGIN) -> np.ndarray:
+    """:func:`certificates` for transitions given as arrays -- means x0 -> x1
+    (K, d), covariance P(s) = P0 + s Wn ((K, d, d) each) -- in any consistent
+    units (the hazards' too): the continuous-time surrogate uses it with
+    P0 = Sigma_k and Wn = 0."""
+    P1 = P0 + Wn
+    tm = transition_minimiser(x0, P0, x1, Wn, hazards, want_lam=True)
     lam = tm.lam                                                # (K, J, F)
-    chi2 = scenario.chi2 if chi2 is None else np.asarray(chi2, float)     # collision level(s)
+    chi2 = np.asarray(chi2, float)                              # collision level(s)
     target = chi2 + np.maximum(chi2 * margin, np.minimum(chi2, 0.5 * (tm.dist2 - chi2)))
     # the two parts of the Lemma-1 margin at each end, from the model's terms:
     # margin(t lam) = -t^2 quad(A^T lam, P) + t bilinear(lam, x) - chi2

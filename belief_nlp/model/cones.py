@@ -1,0 +1,37 @@
+"""Cone families: the common currency between the symbolic convex step
+(:mod:`.doc`, :mod:`.doc_budget`) and its CVXPY form (:mod:`.cvxpy_form`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+__all__ = ["ConeFamily", "KINDS"]
+
+
+KINDS = ("nonneg", "psd", "soc", "exp")
+
+
+@dataclass(frozen=True)
+class ConeFamily:
+    """``batch`` cones of one kind. ``expr`` stacks their entries, affine in z:
+    psd: the full n x n matrices row-major (n = ``dim``); soc: (t, y) with
+    ||y|| <= t (length ``dim``); exp: (a, b, c) with b exp(a / b) <= c; nonneg:
+    one entry per cone."""
+
+    name: str
+    kind: str
+    dim: int
+    batch: int
+    expr: ca.SX
+
+
+def _pick(z: ca.SX, idx: np.ndarray) -> ca.SX:
+    """Symbolic matrix (idx's 2-D shape) of z entries; 0 where idx < 0 (one
+    vectorised selection, no per-entry Python work)."""
+    idx = np.atleast_2d(idx)
+    n = int(z.numel())
+    flat = np.where(idx < 0, n, idx).ravel(order="F")
+    return ca.reshape(ca.vertcat(z, 0)[flat.tolist()], *idx.shape)

@@ -1,0 +1,146 @@
+"""A continuous-time collision budget (``risk_kind="continuous"``, issue 20):
+the per-pair surrogate bounds the exact continuous-time formula, the model
+asks it in every form (NLP, CCP step), and a smoothed path's reported
+continuous-time bound is within its budget."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+import belief_nlp as bn
+from belief_nlp.allocation import CONTINUOUS_FACTOR, RiskBudget
+from belief_nlp.methods.ccp import initial_rho
+from belief_nlp.model import BeliefModel
+from belief_nlp.risk import continuous_surrogate, crossing_probability, path_risk, surrogate_covariances
+from belief_nlp.smoother.context import SmoothingProblem
+from belief_nlp.smoother.driver import _warm_start
+from belief_nlp.study.montecarlo import clopper_pearson, simulate
+
+from test_model import _family_value
+
+BUDGET = 0.05
+
+
+@pytest.fixture(scope="module")
+def planned():
+    sc = bn.load_scenario("paper-multi")
+    return sc, bn.plan(sc, n_nodes=500, seed=0, noise="per_step", risk=0.02).path
+
+
+@pytest.fixture(scope="module")
+def smoothed(planned):
+    sc, path = planned
+    return sc, bn.smooth(sc, path, K=20, alpha=0.1, risk=BUDGET, risk_kind="continuous")
+
+
+def test_surrogate_bounds_the_crossing_probability():
+    """3 Phi_bar(M / sd) >= the reflection formula over random starts, drifts,
+    offsets and noises (the derivation in risk.continuous_surrogate)."""
+    rng = np.random.default_rng(1)
+    n = 3000
+    v0 = np.exp(rng.uniform(-12, 2, n))
+    vd = np.where(rng.random(n) < 0.3, 0.0, np.exp(rng.uniform(-8, 3, n)))
+    s2 = np.exp(rng.uniform(-6, 1, n))
+    m0, mu = rng.normal(0, 3, n), rng.normal(0, 3, n)
+    M = np.minimum(m0, m0 + mu)
+    sur = CONTINUOUS_FACTOR * norm.sf(M / np.sqrt(v0 + vd + s2))
+    keep = (M > 0) & (sur > 1e-12)              # below, the exact sum's own tail floor (~1e-23) dominates
+    exact = np.concatenate([crossing_probability(m0[keep][i:i + 500], v0[keep][i:i + 500], mu[keep][i:i + 500],
+                                                 s2[keep][i:i + 500], 0.0, vd[keep][i:i + 500])
+                            for i in range(0, int(keep.sum()), 500)])
+    assert keep.sum() > 500
+    assert np.all(exact <= sur[keep] * (1 + 1e-9))
+    assert np.max(exact / sur[keep]) > 0.5          # and within 2x of tight somewhere: the factor is not loose
+
+
+def test_model_margins_use_sigma_k_at_both_ends(planned):
+    """The model's continuous margins equal -v^T Sigma_k v + 2 lam^T (A x - b) - chi2
+    at both ends, Sigma_k from the path's own covariances (risk.surrogate_covariances)."""
+    sc, path = planned
+    ws = bn.warm_start(sc, path, K=20)
+    model = BeliefModel(sc, ws.K, 0.1, risk=RiskBudget(BUDGET, "optimal", "continuous"))
+    D = model.data
+    z = model.tighten(model.from_path(ws.path, ws.lam))
+    start, end = model.transition_margins(z)
+    p = model.to_path(z)
+    Sig = surrogate_covariances(p.P, p.P_prior, p.transition_noise) / D.sigma**2
+    v = np.einsum("jfd,kjf->kjd", D.A, z.lam)
+    quad = np.einsum("kjd,kde,kje->kj", v, Sig, v)
+    for xe, got in ((z.x[:-1], start), (z.x[1:], end)):
+        lin = 2 * np.einsum("kjf,kjf->kj", z.lam, np.einsum("jfd,kd->kjf", D.A, xe) - D.b[None])
+        np.testing.assert_allclose(got, -quad + lin - D.chi2, rtol=1e-8, atol=1e-8)
+
+
+def test_convex_step_is_tight_and_feasible_at_its_point(planned):
+    """Every cone family of the continuous CCP step (the surrogate LMIs, the
+    pairs under T_k) holds at the point's own vector."""
+    sc, path = planned
+    budget = RiskBudget(BUDGET, "optimal", "continuous")
+    ws, _ = _warm_start(sc, path, 20, "minimal", False, budget)       # the driver's continuous warm start
+    model = BeliefModel(sc, 20, 0.1, risk=budget)
+    prob = SmoothingProblem(sc, ws, model, max_iter=1, tol=1e-4, time_limit=None, t0=0.0, solver=None,
+                            solver_options={}, progress=False, keep_iterates=False, callback=None, method="ccp")
+    z = prob.start
+    assert prob.check(z).safe
+    form = model.convex_form
+    assert any(f.name == "surrogate_lmi" for f in form.families)
+    assert not any(f.name.startswith("start_h") for f in form.families)
+    rho = initial_rho(model, z)
+    pv, z0 = form.layout.params(z, rho, rho), form.layout.point_vector(z)
+    for fam in form.families:
+        e = np.asarray(ca.Function("e", [form.z, form.p], [fam.expr])(z0, pv)).ravel()
+        assert np.min(_family_value(fam.kind, fam.dim, fam.batch, e)) >= -1e-8, fam.name
+
+
+def test_smoothed_path_is_within_its_continuous_budget(smoothed):
+    sc, res = smoothed
+    assert res.status == "converged" and res.risk.kind == "continuous"
+    rb = path_risk(sc, res.path, res.certificates)
+    assert res.risk.bound == pytest.approx(rb.continuous, rel=1e-9) and rb.continuous <= BUDGET
+    # the surrogate the model spent, recomputed from the path, and what it bounds
+    sur = continuous_surrogate(sc, res.path)
+    assert np.sum(sur) <= BUDGET * (1 + 1e-6)
+    assert np.all(rb.continuous_pairs <= sur + 1e-8)
+    assert res.risk.allotted <= BUDGET * (1 + 1e-9)
+    rep = bn.verify(sc, res)                         # the result's kind and budget
+    assert rep.safe
+
+
+def test_verify_judges_the_kind_it_is_given(planned):
+    """A step-time optimum at the same budget spends more than the budget in
+    continuous time: verify says so only when asked for that kind."""
+    sc, path = planned
+    steps = bn.smooth(sc, path, K=20, alpha=0.1, risk=BUDGET)
+    rb = path_risk(sc, steps.path, steps.certificates)
+    assert rb.step_time <= BUDGET < rb.continuous
+    assert bn.verify(sc, steps).safe
+    lv = steps.risk.levels
+    assert not bn.verify(sc, steps.path, certificates=steps.certificates, levels=lv, budget=BUDGET,
+                         risk_kind="continuous").safe
+
+
+def test_ccp_and_auto_agree_on_the_continuous_problem(planned, smoothed):
+    sc, path = planned
+    _, auto = smoothed
+    ccp = bn.smooth(sc, path, K=20, alpha=0.1, risk=BUDGET, risk_kind="continuous", method="ccp")
+    assert ccp.status == "converged" and bn.verify(sc, ccp).safe
+    assert ccp.cost == pytest.approx(auto.cost, rel=2e-2)
+
+
+def test_simulated_crossings_stay_within_the_bound(smoothed):
+    """Closed-loop simulation (feedback on the estimate, finely sampled
+    trajectories): the rate of runs touching a hazard is within the
+    reported continuous-time bound (95 % Clopper-Pearson lower end)."""
+    sc, res = smoothed
+    mc = simulate(sc, res.path, runs=4000, substeps=60, seed=5)
+    lo, _ = clopper_pearson(mc.hazard_runs, mc.runs)
+    assert lo <= res.risk.bound
+
+
+def test_fatrop_refuses_a_continuous_budget(planned):
+    sc, path = planned
+    with pytest.raises(bn.ValidationError, match="risk_kind"):
+        bn.smooth(sc, path, K=20, risk=BUDGET, risk_kind="continuous", method="fatrop")
