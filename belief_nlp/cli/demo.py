@@ -78,6 +78,7 @@ def _cmd_demo(run: _Run) -> int:
     import numpy as np
 
     from ..smoother import get_method
+    from ..smoother.registry import iterations_counted
 
     a = run.args
     if a.quick:
@@ -111,7 +112,8 @@ def _cmd_demo(run: _Run) -> int:
         s = _run_summary(e)
         if s.get("smooth_status"):
             run.say(f"alpha = {_fmt_alpha(e['alpha'])}: planner cost {s['plan_cost']:.5g} ({s['plan_steps']} steps); "
-                    f"{s['smooth_method']} {s['smooth_status']} after {s['smooth_iterations']} iterations: "
+                    f"{s['smooth_method']} {s['smooth_status']} after "
+                    f"{iterations_counted(s['smooth_iterations'], s['smooth_method'])}: "
                     f"steering cost {s['initial_cost']:.5g} -> {s['smooth_cost']:.5g}")
     run.say(f"demo finished in {summary['total_time_s']:.1f} s")
     if failures:

@@ -96,8 +96,17 @@ def write_report(directory: str | os.PathLike, figures: bool = True) -> Path:
               "success = a verified path returned; time = total wall time (planning, warm start, smoothing), "
               "shifted geometric mean with shift 1 s, failures charged the largest time seen; cost / best = "
               "geometric mean over the cases of the cost over the best method's cost in the same case; "
-              "best = share of cases where the method was within 0.1 % of the best.", "",
+              "best = share of cases where the method was within 0.1 % of the best; iters = the smoother's "
+              "iterations in total (SmoothResult.nit: CCP steps; IPOPT iterations of both stages and restarts; "
+              "auto: both), at most the variant's max_iter.", "",
               table_markdown(method_table(df)), ""]
+    capped = df[df["status"] == "max_iter"]
+    if len(capped):
+        lines += [f"{len(capped)} row(s) stopped at their iteration limit before converging (status `max_iter`: "
+                  f"{', '.join(f'{m} {n}' for m, n in capped['method'].value_counts(sort=False).items())}); their "
+                  "paths are verified and count as successes, not as converged. Raise `max_iter` in the study's "
+                  "`[solver.<method>]` table, or leave it out (each method's own limit), to compare converged "
+                  "results.", ""]
     lines += ["## Per scenario", "", "| scenario | method | rows | success | median cost | median wall s |",
               "|---|---|---|---|---|---|"]
     ok = df["safe"].astype(bool)
