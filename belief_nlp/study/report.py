@@ -24,7 +24,10 @@ __all__ = ["write_report"]
 
 
 def _finish(fig, ax, xlabel: str, ylabel: str, title: str, path: Path) -> None:
+    from ..plotting.ticks import plain_numbers
+
     ax.set_xscale("log")
+    plain_numbers(ax.xaxis)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title)
@@ -41,6 +44,8 @@ def _figure_profiles(df, out: Path) -> list[str]:
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
+
+    from ..plotting.ticks import plain_numbers
 
     names = []
     for column, label, fname in (("wall_time", "wall time", "profile_time.png"), ("cost", "cost", "profile_cost.png")):
@@ -63,9 +68,11 @@ def _figure_profiles(df, out: Path) -> list[str]:
     ok = df[df["safe"].astype(bool)]
     if len(ok):
         fig, ax = plt.subplots(figsize=(5, 3.5))
-        for m, g in ok.groupby("method", sort=False):
-            ax.scatter(g["wall_time"].astype(float), g["cost"].astype(float), s=12, label=m, alpha=0.7)
+        for i, (m, g) in enumerate(ok.groupby("method", sort=False)):   # a marker each: equal costs stay apart
+            ax.scatter(g["wall_time"].astype(float), g["cost"].astype(float), s=12, label=m, alpha=0.7,
+                       marker="os^Dv<>"[i % 7])
         ax.set_yscale("log")
+        plain_numbers(ax.yaxis)
         _finish(fig, ax, "total wall time (plan + warm start + smoothing), s", "cost (smoother's objective)",
                 "Cost versus total wall time", out / "cost_vs_time.png")
         names.append("cost_vs_time.png")
