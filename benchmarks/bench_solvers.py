@@ -36,7 +36,7 @@ import numpy as np
 import belief_nlp as bn
 from belief_nlp.comparison import compact, compare, records_to_table
 
-MAX_RADIUS = 1.5          # belief_nlp.cli.DEMO_MAX_RADIUS: per-step noise needs it at alpha = 1
+MAX_RADIUS = 1.5          # belief_nlp.cli.demo.DEMO_MAX_RADIUS: the demo's plans (paper-multi's own cap: 0.3)
 MAX_ITER = {"ccp": 100, "ipopt": 3000}
 
 

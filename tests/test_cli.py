@@ -299,13 +299,32 @@ def test_demo_quick_through_the_console_script(tmp_path, method):
 
 
 def test_demo_in_process_single_alpha(tmp_path, hand_path_file, capsys):
-    code, out, err = run(["demo", "--quick", "--method", "ccp", "--alphas", 0.1, "--no-gif", "--nodes", 200, "-q",
+    from belief_nlp.cli.demo import DEMO_MAX_RADIUS
+    from belief_nlp.planner import PlanResult
+
+    code, out, err = run(["demo", "--quick", "--method", "ccp", "--alphas", 0.1, "--no-gif", "--nodes", 200,
                           "--out", tmp_path], capsys)
     assert code == EXIT_OK or (code == EXIT_FAILED and "planning failed" in err), err
     assert sorted(p.name for p in tmp_path.glob("*.gif")) == []
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["nodes"] == 200 and summary["max_iter"] == 3 and summary["method"] == "ccp"
     assert_image(tmp_path / "fig4_cost_history.png")
+    # the demo's radius cap is its own (1.5), not paper-multi's 0.3: its log line says so ...
+    assert DEMO_MAX_RADIUS == 1.5 and summary["max_radius"] == 1.5
+    assert ("200 nodes, seed 0, alpha 0.1, per_step noise, radius cap 1.5 + 1.2 alpha = 1.62 (--max-radius; "
+            "the scenario's [planner]: 0.3 + 1.2 alpha)") in err
+    # ... and 'plan' with the settings the log states plans the same path; without them, its own
+    for i, (extra, note) in enumerate(((["--max-radius", 1.5], "1.62 (--max-radius;"),
+                                       ([], "radius cap 0.3 + 1.2 alpha = 0.42\n"))):
+        code, _, err = run(["plan", "paper-multi", "--alpha", 0.1, "--nodes", 200, *extra,
+                            "--out", tmp_path / f"p{i}"], capsys)
+        assert note in err
+    same = PlanResult.load(tmp_path / "plan_alpha0.1.json"), PlanResult.load(tmp_path / "p0" / "plan.json")
+    assert same[0].cost == same[1].cost is not None
+    if same[0].success:
+        assert same[0].path == same[1].path
+    assert "demo's own, not the scenario's [planner] value" in " ".join(
+        run(["demo", "--help"], capsys)[1].split())
 
 
 @pytest.mark.parametrize("argv, max_iter", [

@@ -153,6 +153,25 @@ def test_iteration_limit_returns_a_verified_point(hand_start):
     assert "Maximum_Iterations_Exceeded" in res.message
 
 
+def test_iteration_limit_and_what_was_counted_are_stated(hand_start):
+    """A run stopped by its iteration limit says the limit (the method's, or a
+    lower solver option's), how many iterations ran and what one is; when
+    IPOPT's first attempt stops at its share of the limit, the message says so."""
+    sc, ws = hand_start
+    for kw, limit in ((dict(max_iter=10), 10), (dict(solver_options={"max_iter": 5}), 5)):
+        res = bn.smooth(sc, ws, method="ipopt", **kw)
+        assert res.status == "max_iter" and res.nit <= limit, res.message
+        assert f"; {res.nit} of at most {limit} iterations (each one IPOPT iteration, log-Cholesky stage or " \
+               f"polish)" in res.message
+        if res.nit < limit:     # two thirds, the rest kept for a restart from a safe point it did not find
+            assert f"share of the iteration limit {limit}: the rest ({limit - res.nit})" in res.message
+        assert "every iterate is feasible" not in res.message      # not true of IPOPT's iterates
+        assert f"{res.nit} iterations (each one IPOPT iteration" in res.summary()
+    ccp = bn.smooth(sc, ws, method="ccp", max_iter=2)
+    assert ccp.status == "max_iter" and ccp.nit == 2
+    assert ccp.message.endswith("; 2 of at most 2 iterations (each one convex (SDP) step)")
+
+
 def test_time_limit(hand_start):
     sc, ws = hand_start
     res = bn.smooth(sc, ws, method="ipopt", max_iter=3000, time_limit=0.05)

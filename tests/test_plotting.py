@@ -172,15 +172,50 @@ def test_cost_history_input_forms(tmp_path):
         np.testing.assert_allclose(line.get_ydata(), costs, err_msg=name)
         np.testing.assert_array_equal(line.get_xdata(), np.arange(len(costs)))
     fig, ax = bp.plot_cost_history(forms, log=True)
-    assert [ln.get_label() for ln in ax.get_lines()] == list(forms)
+    # all seven curves are equal: each later one names the first
+    assert [ln.get_label() for ln in ax.get_lines()] == ["numbers"] + [f"{k} (same as numbers)"
+                                                                       for k in list(forms)[1:]]
     assert ax.get_yscale() == "log"
     fig, ax = bp.plot_cost_history([costs, records], labels=["CCP", "IPOPT"])
-    assert [ln.get_label() for ln in ax.get_lines()] == ["CCP", "IPOPT"]
+    assert [ln.get_label() for ln in ax.get_lines()] == ["CCP", "IPOPT (same as CCP)"]
     _assert_real_image(bp.save_figure(fig, tmp_path / "cost.png", dpi=60))
     with pytest.raises(ValueError):
         bp.plot_cost_history([{"value": 1.0}])
     with pytest.raises(ValueError):
         bp.plot_cost_history([costs, costs], labels=["one"])
+
+
+def test_coinciding_cost_curves_stay_visible_and_named():
+    """auto's first stage is IPOPT: equal histories must not hide one another."""
+    ipopt = [10.0, 9.9, 6.0, 3.1, 2.4, 2.31283]
+    ccp = [10.0, 4.0, 2.5, 2.31283]
+    fig, ax = bp.plot_cost_history({"auto": ipopt, "ccp": ccp, "ipopt": list(ipopt)}, log=True, marker="")
+    auto, _, ip = lines = ax.get_lines()
+    assert len({ln.get_linestyle() for ln in lines}) == 3        # a style each, not only a colour
+    assert ip.get_zorder() > auto.get_zorder()                   # the twin is drawn over, dashed,
+    assert auto.get_linewidth() > 2 * ip.get_linewidth()         # on a wide pale halo of the first
+    assert ip.get_linestyle() != "-" and ip.get_visible() and auto.get_visible()
+    np.testing.assert_array_equal(ip.get_ydata(), auto.get_ydata())
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["auto", "ccp", "ipopt (same as auto)"]
+
+
+@pytest.mark.parametrize("low, high, expect", [
+    (2.31, 10.0, None),          # notebook 03's curve: less than a decade (matplotlib labels 10 only)
+    (2.31, 2.4, None),           # a narrow view: no 1-2-5 value inside, evenly spaced labels instead
+    (0.39, 1.65, None),
+    (1e-3, 1e3, [1e-3, 1e-2, 1e-1, 1, 10, 100, 1000]),   # decades: 1 per decade
+])
+def test_log_cost_axis_has_readable_labels(low, high, expect):
+    fig, ax = bp.plot_cost_history({"a": np.geomspace(high, low, 30)}, log=True)
+    fig.canvas.draw()
+    lo, hi = ax.get_ylim()
+    shown = {t.get_loc(): t.label1.get_text() for t in ax.yaxis.get_major_ticks() if lo <= t.get_loc() <= hi}
+    ticks = sorted(shown)
+    assert 4 <= len(ticks) <= 10
+    for value, text in shown.items():          # every tick in view labelled, as a plain number
+        assert float(text) == pytest.approx(value, rel=1e-3), text
+    if expect is not None:
+        np.testing.assert_allclose(sorted(ticks), expect)
 
 
 def test_anytime_skips_infinite_costs(tmp_path):

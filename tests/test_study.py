@@ -151,6 +151,22 @@ def test_row_reproduces_its_case(pool_dir):
     assert rows_equal({k: row[k] for k in again}, again, rtol=1e-7)
 
 
+def test_builtin_smoke_study_runs_every_method_to_convergence():
+    """The smoke study caps no method (a cap would give max_iter rows that read
+    as failures); one of its cases, run here, plans and both smoothers converge
+    to the same optimum (the whole study: docs/studies.md)."""
+    st = load_study("smoke")
+    cases = list(st.cases())
+    assert len(cases) == 12 and "to convergence" in st.description
+    assert all("max_iter" not in v.options for c in cases for v in c.methods)
+    case = next(c for c in cases if (c.scenario.label, c.seed, c.alpha) == ("random-polygons-0", 1, 1.0))
+    rows = {r["method"]: r for r in run_case(case)}
+    assert rows["none"]["status"] == "warm_start"
+    for m in ("ccp", "ipopt"):
+        assert rows[m]["status"] == "converged" and rows[m]["safe"] and rows[m]["cost"] < rows["none"]["cost"]
+    assert rows["ccp"]["cost"] == pytest.approx(rows["ipopt"]["cost"], rel=1e-3)
+
+
 def test_failures_are_recorded_and_the_study_goes_on(tmp_path):
     st = Study(name="bad", scenarios=["paper-multi"], seeds=[0], alpha=[0.1], K=[12],
                methods=["none", "no-such-method"], planner={"n_nodes": 100})
@@ -204,6 +220,10 @@ def test_report_and_cli(tiny_toml, pool_dir, tmp_path, capsys):
     path = write_report(pool_dir)
     text = path.read_text()
     assert "| method |" in text and "ccp" in text and "profile_time.png" in text
+    # the tiny study caps CCP at 2 and IPOPT at 10: the report says what iters count and which rows hit a cap
+    assert "iters = the smoother's iterations in total" in text
+    capped = bn.load_records(pool_dir)["status"].eq("max_iter").sum()
+    assert capped > 0 and f"{capped} row(s) stopped at their iteration limit" in text
     assert (pool_dir / "profile_cost.png").exists() and (pool_dir / "cost_vs_time.png").exists()
     out = tmp_path / "cli"
     assert main(["study", "run", str(tiny_toml), "--out", str(out), "--workers", "1", "--limit", "1", "-q"]) == 0

@@ -135,7 +135,9 @@ def _scenario_arg(p: argparse.ArgumentParser, default: str | None = None) -> Non
 
 
 def _planner_args(p: argparse.ArgumentParser, nodes: int = 500, title: str = "planner (IG-RRT*)",
-                  max_radius: float | None = None) -> None:
+                  max_radius: float | None = None, max_radius_help: str | None = None) -> None:
+    """The planner's options; ``--max-radius`` defaults to ``max_radius``
+    (None: the scenario's), explained by ``max_radius_help`` if given."""
     g = p.add_argument_group(title)
     g.add_argument("--nodes", type=_positive_int, default=nodes, help="nodes in the final tree (the paper's N)")
     g.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (same seed, same plan)")
@@ -148,7 +150,8 @@ def _planner_args(p: argparse.ArgumentParser, nodes: int = 500, title: str = "pl
                         "for the per-step model)")
     g.add_argument("--max-radius", type=_positive_float, default=max_radius, metavar="R",
                    help="cap of the rewiring radius, in cost units" + (
-                       " (default: the scenario's [planner] value)" if max_radius is None else "")
+                       " (default: the scenario's [planner] value)" if max_radius is None
+                       else f" (default %(default)s: {max_radius_help})" if max_radius_help else "")
                    + ". With per_step noise every edge pays for a full W, so a larger cap than the "
                      "per-metre one lets IG-RRT* connect at large alpha")
     g.add_argument("--no-branch-and-bound", dest="branch_and_bound", action="store_false",

@@ -61,8 +61,8 @@ def _plan(run: _Run, sc, *, label: str = "", stem: str = "plan", figures: bool =
     from ..planner import plan
 
     a = run.args
-    log.info("%splanning on %s with IG-RRT*: %d nodes, seed %d, alpha %g, %s noise", label, sc.name or "scenario",
-             a.nodes, a.seed, sc.alpha, a.noise)
+    log.info("%splanning on %s with IG-RRT*: %d nodes, seed %d, alpha %g, %s noise, %s", label, sc.name or "scenario",
+             a.nodes, a.seed, sc.alpha, a.noise, _radius_note(sc, a.max_radius))
     t0 = time.perf_counter()
     extra = {} if a.max_radius is None else {"max_radius": a.max_radius}
     res = plan(sc, n_nodes=a.nodes, seed=a.seed, metric=a.metric, noise=a.noise, time_limit=a.time_limit,
@@ -77,6 +77,26 @@ def _plan(run: _Run, sc, *, label: str = "", stem: str = "plan", figures: bool =
     if figures:
         _plan_figures(run, sc, res, stem)
     return res
+
+
+def _radius_note(sc, given: float | None) -> str:
+    """The rewiring-radius cap for the log: the value used and, when
+    ``--max-radius`` differs from the scenario's ``[planner]`` value (the
+    demo's own default does), the scenario's, so that two runs whose stated
+    settings agree plan the same."""
+    from ..planner.options import resolve_options
+
+    own = resolve_options(sc.planner, sc.alpha, sc.chi2)   # the scenario's values, validated as plan() does
+
+    def cap(r: float) -> str:
+        return f"{r:g}" + (f" + {own.radius_per_alpha:g} alpha" if own.radius_per_alpha else "")
+
+    used = own.max_radius if given is None else given
+    note = f"radius cap {cap(used)}" + (f" = {used + own.radius_per_alpha * sc.alpha:.3g}"
+                                        if own.radius_per_alpha else "")
+    if used != own.max_radius:
+        note += f" (--max-radius; the scenario's [planner]: {cap(own.max_radius)})"
+    return note
 
 
 def _plan_figures(run: _Run, sc, res, stem: str) -> None:

@@ -42,6 +42,7 @@ def add_parser(sub) -> None:
 
 def _cmd_smooth(run: _Run) -> int:
     from ..plotting import animate_smoothing, plot_belief_path, plot_cost_history
+    from ..smoother.registry import iterations_counted
 
     a = run.args
     sc, path, code = _scenario_and_path(run)
@@ -75,7 +76,7 @@ def _cmd_smooth(run: _Run) -> int:
     run.list_written()
     run.say(f"smooth: {_status_line(res)}; steering cost at K = {res.path.K}: {res.initial_cost:.6g} -> "
             f"{res.cost:.6g} (control {res.control:.4g} + {res.alpha:g} x information {res.information:.4g} nats), "
-            f"{res.nit} iterations")
+            f"{iterations_counted(res.nit, res.method)}")
     if res.risk is not None:
         run.say(f"smooth: {res.risk.summary()}")
     if _smooth_failed(res):
@@ -86,11 +87,12 @@ def _cmd_smooth(run: _Run) -> int:
 def _smooth(run: _Run, sc, path, method: str, *, keep_iterates: bool = False, label: str = "",
             options: dict | None = None):
     from ..smoother import get_method, smooth
+    from ..smoother.registry import iterations_counted
 
     a = run.args
     K, why = _horizon(a.horizon, sc, path)
-    log.info("%ssmoothing with %s: K = %d (%s), at most %d iterations", label, method.upper(), K, why,
-             a.max_iter or get_method(method).max_iter)
+    log.info("%ssmoothing with %s: K = %d (%s), at most %s", label, method.upper(), K, why,
+             iterations_counted(a.max_iter or get_method(method).max_iter, method))
     t0 = time.perf_counter()
     budget = {}
     if sc.risk is not None:            # the scenario's or --risk: the smoother allocates it
@@ -106,7 +108,7 @@ def _smooth(run: _Run, sc, path, method: str, *, keep_iterates: bool = False, la
     except ImportError as exc:  # a method whose module is not installed
         raise BeliefNLPError(f"method {method!r} is not available in this installation: {exc}") from None
     log.info("%s%s: %s, cost %.6g after %d iterations in %.1f s", label, res.method.upper(), res.status,
-             res.cost, res.nit, time.perf_counter() - t0)
+             res.cost, res.nit, time.perf_counter() - t0)   # what they count: the line before
     return res
 
 

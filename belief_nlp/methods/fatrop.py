@@ -175,6 +175,6 @@ METHOD = register(Method(
     name="fatrop", run=run, max_iter=300, default_solver="fatrop", check_solver=_check_solver,
     description="fatrop (Riccati-structured interior point) on the stage-ordered exact NLP through CasADi; "
                 "floored log-Cholesky stage, then an exact-Cholesky polish",
-    iteration="one fatrop iteration",
+    iteration="one fatrop iteration, log-Cholesky stage or polish",
     options=nlp_options("fatrop"),
 )) if available() else None

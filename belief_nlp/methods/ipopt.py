@@ -102,6 +102,6 @@ METHOD = register(Method(
     check_solver=lambda s: None if s.upper() == "IPOPT" else f"method 'ipopt' runs IPOPT only, got {s!r}",
     description="IPOPT on the exact NLP (S = L L^T, Q = M M^T, Kalman equality), exact Hessian; "
                 "floored log-Cholesky stage, then an exact-Cholesky polish",
-    iteration="one IPOPT iteration",
+    iteration="one IPOPT iteration, log-Cholesky stage or polish",
     options=nlp_options("IPOPT"),
 ))

@@ -230,6 +230,7 @@ class _Stage:
     attempts: list = field(default_factory=list)
     build: str = ""
     build_time: float = 0.0
+    limit: int = 0                       # the stage's iteration limit
 
 
 _STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded", "stalled": "Stalled"}
@@ -250,6 +251,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
     nlp, solver, recorder, stage.build = _solver(problem, backend, opts, formulation, margin, regularisation, floor,
                                                  max(int(candidates), 0), cache)
     stage.build_time = time.perf_counter() - t_build
+    stage.limit = int(max_iter)
     recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0)
     recorder.offset = offset
     z_start = start
@@ -339,14 +341,16 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         stages.append(second)
     if bar is not None:
         bar.close()
-    return _outcome(problem, backend, stages)
+    return _outcome(problem, backend, stages, max_iter)
 
 
-def _outcome(problem: SmoothingProblem, backend: NLPBackend, stages: list[_Stage]) -> Outcome:
-    """The run's status, answer and raw stats from its stages."""
+def _outcome(problem: SmoothingProblem, backend: NLPBackend, stages: list[_Stage], max_iter: int) -> Outcome:
+    """The run's status, answer and raw stats from its stages (``max_iter``:
+    the run's iteration limit, the method's or a lower ``max_iter`` solver option)."""
     first, last = stages[0], stages[-1]
     attempts = [a for s in stages for a in s.attempts]
     stats: dict[str, Any] = {
+        "iteration_limit": int(max_iter),
         "build": first.build, "build_time": sum(s.build_time for s in stages), "attempts": attempts,
         "return_status": first.status, "iter_count": sum(s.used for s in stages),
         "restoration": None if any(a["restoration"] is None for a in attempts)
@@ -356,6 +360,12 @@ def _outcome(problem: SmoothingProblem, backend: NLPBackend, stages: list[_Stage
     message = f"{backend.name} returned {first.status} after {first.used} iterations"
     if len(first.attempts) > 1:
         message += f" in {len(first.attempts)} attempts ({', '.join(a['return_status'] for a in first.attempts)})"
+    elif first.status == _STOPS["max_iter"] and first.used < first.limit:
+        # the first attempt gets two thirds of the limit; the rest is for a
+        # restart from a safe point below the start, and there was none
+        message += (f", the first attempt's share of the iteration limit {first.limit}: the rest "
+                    f"({first.limit - first.used}) is kept for a restart from an exactly safe iterate below the "
+                    f"warm start, and there was none")
     answer = first.answer
     if len(stages) > 1:
         stats["polish_status"] = last.status

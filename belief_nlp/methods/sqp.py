@@ -89,6 +89,6 @@ _OPTIONS["polish"] = replace(_OPTIONS["polish"], default=200)      # funnel-SQP'
 METHOD = register(Method(
     name="sqp", run=run, max_iter=3000, default_solver="Uno", check_solver=_check_solver,
     description="SQP baseline: Uno's filter-SQP (exact Hessian, trust region) on the exact NLP through CasADi",
-    iteration="one SQP iteration",
+    iteration="one SQP iteration, log-Cholesky stage or polish",
     options=_OPTIONS,
 ))

@@ -35,6 +35,7 @@ Modules (one idea each; import from ``belief_nlp.plotting``, not from them)
 * ``cost_history``: :func:`plot_cost_history` (cost against CCP iteration).
 * ``anytime``: :func:`plot_anytime` (planner best cost, median and quartiles over runs).
 * ``animation``: :func:`animate_smoothing` (GIF over CCP iterations).
+* ``ticks``: readable cost axes (plain numbers; log axes with at least four labels).
 * ``risk``: :func:`plot_risk_allocation` (ellipses at each transition's own
   level beside the risk allotted per transition), :func:`fixed_allocation`.
 """

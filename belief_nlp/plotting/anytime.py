@@ -8,6 +8,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from .cost_history import _relabel
+from .ticks import plain_numbers
 
 
 def _runs(obj: Any) -> list[np.ndarray]:
@@ -84,6 +85,7 @@ def plot_anytime(cost_history: Any, ax=None, *, x: Iterable[float] | None = None
     ax.set_ylabel(ylabel)
     if log:
         ax.set_yscale("log")
+        plain_numbers(ax.yaxis)
     ax.grid(True, alpha=0.3)
     if any(line.get_label() and not line.get_label().startswith("_") for line in ax.get_lines()):
         ax.legend(fontsize=8)

@@ -8,6 +8,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.ticker import MaxNLocator
 
+from .ticks import plain_numbers
+
+#: Line styles of successive curves (the colours cycle as matplotlib's).
+_LINESTYLES = ("-", "--", "-.", ":")
+
 
 def _is_series(obj: Any) -> bool:
     """Whether ``obj`` is one whole cost history (not a single record)."""
@@ -57,6 +62,22 @@ def _relabel(items: list[tuple[str | None, Any]], labels: Sequence[str] | None) 
     return [(str(lab), data) for lab, (_, data) in zip(labels, items)]
 
 
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and bool(np.allclose(a, b, rtol=1e-12, atol=0.0, equal_nan=True))
+
+
+def _twins(items: list[tuple[str | None, np.ndarray]]) -> list[tuple[str | None, np.ndarray, bool]]:
+    """(label, costs, covered) per curve: "(same as X)" added to the label of
+    a curve equal to an earlier one, X; ``covered`` when a later curve equals
+    this one (it is drawn wide and pale, so the one drawn over it leaves a halo)."""
+    out = []
+    for j, (label, costs) in enumerate(items):
+        twin = next((lab for lab, c in items[:j] if lab is not None and _same(c, costs)), None)
+        covered = any(_same(c, costs) for _, c in items[j + 1:])
+        out.append((f"{label} (same as {twin})" if label is not None and twin is not None else label, costs, covered))
+    return out
+
+
 def plot_cost_history(histories: Any, ax=None, labels: Sequence[str] | None = None, log: bool = False, *,
                       xlabel: str = "CCP iteration", ylabel: str = "steering cost", marker: str = "o"):
     """Cost against CCP iteration for one or several methods (the paper's Fig. 4).
@@ -66,38 +87,37 @@ def plot_cost_history(histories: Any, ax=None, labels: Sequence[str] | None = No
     with a ``history`` of such records, a list of several of these, or a dict
     ``{label: any of these}``. Entry i is drawn at iteration i (entry 0 is
     usually the initial path). ``labels`` names the curves (overriding dict
-    keys); ``log=True`` uses a logarithmic cost axis. Non-finite costs leave a
-    gap. Returns ``(fig, ax)``.
+    keys); ``log=True`` uses a logarithmic cost axis, labelled at 1-2-5 values
+    (denser when the costs span less than a decade, so that at least four
+    are labelled). Non-finite costs leave a gap. Successive curves get solid,
+    dashed, dash-dot and dotted lines, each drawn over the ones before, so
+    curves that coincide (``auto`` and ``ipopt`` when auto's IPOPT stage
+    answers) all stay visible: a curve equal to a later one is drawn wide and
+    pale beneath it, and the later one is labelled "LABEL (same as EARLIER)".
+    Returns ``(fig, ax)``.
     """
     if ax is None:
         fig, ax = plt.subplots(figsize=(5.5, 3.8))
     else:
         fig = ax.figure
     items = _labelled_series(histories, labels)
-    for label, costs in items:
+    # Curves of several methods often coincide (auto's first stage is IPOPT):
+    # each gets its own line style, later ones drawn over earlier ones, a
+    # curve with a later twin wide and pale beneath it, and the legend names
+    # the twin.
+    for i, (label, costs, covered) in enumerate(_twins(items)):
         costs = np.where(np.isfinite(costs), costs, np.nan)
-        ax.plot(np.arange(costs.size), costs, marker=marker, markersize=3, label=label)
+        halo = {"linewidth": 4.0, "alpha": 0.45} if covered else {}
+        ax.plot(np.arange(costs.size), costs, linestyle=_LINESTYLES[i % len(_LINESTYLES)], marker=marker,
+                markersize=3, label=label, zorder=2 + i / max(len(items), 1), **halo)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel if "[" in ylabel else f"{ylabel} [m^2 + alpha nats]")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     if log:
         ax.set_yscale("log")
-    _plain_numbers(ax.yaxis)
+    plain_numbers(ax.yaxis)
     ax.grid(True, alpha=0.3)
     if any(label is not None for label, _ in items):
         ax.legend(fontsize=8)
     return fig, ax
 
-
-def _plain_numbers(axis) -> None:
-    """Plain tick labels (2, 3, 4 rather than 2x10^0) on linear and log axes."""
-    from matplotlib.ticker import FuncFormatter, LogLocator, ScalarFormatter
-
-    if axis.get_scale() == "log":
-        axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-        axis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
-        axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-    else:
-        fmt = ScalarFormatter(useOffset=False)
-        fmt.set_scientific(False)
-        axis.set_major_formatter(fmt)

@@ -394,6 +394,12 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
         iterates = [model.to_path(problem.start)] + [model.to_path(z) for _, z in sorted(problem.points.items())]
     hist = problem.history
     nit = len(hist) - 1
+    if status == "max_iter":
+        # say the limit and what one iteration is ("after N iterations" alone
+        # reads as a failure, and N may be below the limit: module doc of nlp_engine)
+        limit = int(outcome.stats.get("iteration_limit", problem.max_iter))
+        message = f"{message}; {nit} of at most {limit} iterations" + (
+            f" (each {m.iteration})" if m.iteration != "iteration" else "")
     return SmoothResult(
         path=path, cost=c, control=ctrl, information=info, success=status == "converged", status=status,
         message=message, nit=nit, history=hist, method=method_name, solver=solver, alpha=model.data.alpha,

@@ -257,3 +257,14 @@ def resolve_method(method: str | Callable | Method) -> Method:
         return Method(name=name, run=method, max_iter=getattr(method, "max_iter", 100), options=opts,
                       description=(inspect.getdoc(method) or "").split("\n")[0])
     raise ValidationError("method", f"must be a method name, a Method or a callable, got {type(method).__name__}")
+
+
+def iterations_counted(nit: int, method: str) -> str:
+    """``"N iterations (each one IPOPT iteration, ...)"``: an iteration count
+    that says what it counts (the method's :attr:`Method.iteration`), for
+    messages and summaries; ``method`` is a registered name or a result's
+    label such as ``"auto:ipopt"`` (an unknown name gives the bare count)."""
+    count = f"{nit} iteration{'' if nit == 1 else 's'}"
+    key = method.split(":")[0] if isinstance(method, str) else ""
+    m = _REGISTRY.get(key) or {k.lower(): v for k, v in _REGISTRY.items()}.get(key.lower())
+    return count if m is None or m.iteration == "iteration" else f"{count} (each {m.iteration})"

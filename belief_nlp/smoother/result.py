@@ -20,7 +20,7 @@ __all__ = ["IterationRecord", "SmoothResult", "STATUSES"]
 # only for "converged", and never for an answer above the warm start.
 STATUSES = {
     "converged": "relative cost decrease fell below tol",
-    "max_iter": "iteration limit reached (every iterate is feasible; not converged)",
+    "max_iter": "iteration limit reached (not converged; the best feasible iterate is returned)",
     "time_limit": "wall-time limit reached (best feasible iterate returned)",
     "solver_failed": "a subproblem failed twice (best feasible iterate returned)",
     "non_monotone": "a step would have increased the cost beyond tolerance (rejected; best iterate returned)",
@@ -276,12 +276,14 @@ class SmoothResult:
 
     def summary(self) -> str:
         """A few lines for people: status, the cost and its parts, proof, time."""
+        from .registry import iterations_counted
+
         head = "converged" if self.success else f"NOT converged ({self.status})"
         v = self.verification
         lines = [f"{self.method} {head}: {self.message}",
                  f"  steering cost at K = {self.path.K}: {self.initial_cost:.6g} (warm start) -> {self.cost:.6g} "
                  f"= control {self.control:.6g} m^2 + {self.alpha:g} * information {self.information:.6g} nats",
-                 f"  {self.nit} iterations, {self.timings.get('total', float('nan')):.3g} s "
+                 f"  {iterations_counted(self.nit, self.method)}, {self.timings.get('total', float('nan')):.3g} s "
                  f"(solver {self.timings.get('solver', float('nan')):.3g} s); solver {self.solver or '-'}",
                  f"  verified {'safe' if self.safe else 'UNSAFE'} by {v.get('proof', 'sampling')}, "
                  f"min margin {v.get('min_margin', float('nan')):.4g}"]

@@ -24,7 +24,10 @@ __all__ = ["write_report"]
 
 
 def _finish(fig, ax, xlabel: str, ylabel: str, title: str, path: Path) -> None:
+    from ..plotting.ticks import plain_numbers
+
     ax.set_xscale("log")
+    plain_numbers(ax.xaxis)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title)
@@ -41,6 +44,8 @@ def _figure_profiles(df, out: Path) -> list[str]:
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
+
+    from ..plotting.ticks import plain_numbers
 
     names = []
     for column, label, fname in (("wall_time", "wall time", "profile_time.png"), ("cost", "cost", "profile_cost.png")):
@@ -63,9 +68,11 @@ def _figure_profiles(df, out: Path) -> list[str]:
     ok = df[df["safe"].astype(bool)]
     if len(ok):
         fig, ax = plt.subplots(figsize=(5, 3.5))
-        for m, g in ok.groupby("method", sort=False):
-            ax.scatter(g["wall_time"].astype(float), g["cost"].astype(float), s=12, label=m, alpha=0.7)
+        for i, (m, g) in enumerate(ok.groupby("method", sort=False)):   # a marker each: equal costs stay apart
+            ax.scatter(g["wall_time"].astype(float), g["cost"].astype(float), s=12, label=m, alpha=0.7,
+                       marker="os^Dv<>"[i % 7])
         ax.set_yscale("log")
+        plain_numbers(ax.yaxis)
         _finish(fig, ax, "total wall time (plan + warm start + smoothing), s", "cost (smoother's objective)",
                 "Cost versus total wall time", out / "cost_vs_time.png")
         names.append("cost_vs_time.png")
@@ -96,8 +103,17 @@ def write_report(directory: str | os.PathLike, figures: bool = True) -> Path:
               "success = a verified path returned; time = total wall time (planning, warm start, smoothing), "
               "shifted geometric mean with shift 1 s, failures charged the largest time seen; cost / best = "
               "geometric mean over the cases of the cost over the best method's cost in the same case; "
-              "best = share of cases where the method was within 0.1 % of the best.", "",
+              "best = share of cases where the method was within 0.1 % of the best; iters = the smoother's "
+              "iterations in total (SmoothResult.nit: CCP steps; IPOPT iterations of both stages and restarts; "
+              "auto: both), at most the variant's max_iter.", "",
               table_markdown(method_table(df)), ""]
+    capped = df[df["status"] == "max_iter"]
+    if len(capped):
+        lines += [f"{len(capped)} row(s) stopped at their iteration limit before converging (status `max_iter`: "
+                  f"{', '.join(f'{m} {n}' for m, n in capped['method'].value_counts(sort=False).items())}); their "
+                  "paths are verified and count as successes, not as converged. Raise `max_iter` in the study's "
+                  "`[solver.<method>]` table, or leave it out (each method's own limit), to compare converged "
+                  "results.", ""]
     lines += ["## Per scenario", "", "| scenario | method | rows | success | median cost | median wall s |",
               "|---|---|---|---|---|---|"]
     ok = df["safe"].astype(bool)

@@ -3,7 +3,7 @@
 The TOML form (docs/studies.md has the full reference)::
 
     [study]
-    name = "smoke"
+    name = "mine"
     scenarios = ["paper-multi", "random-polygons:2"]   # built-ins, files, family:count, family@seed
     seeds = [0, 1]                  # planner seeds
     alpha = [0.1, 1.0]
