@@ -243,3 +243,12 @@ def test_top_level_name_has_numpy_sections(name):
         assert found.get("Returns"), f"{name}: no 'Returns' section"
     missing = [p for p in params if p not in documented]
     assert not missing, f"{name}: parameters {missing} are not documented (numpy-style sections: {sorted(found)})"
+
+
+def test_the_installed_version_is_the_packages():
+    """pyproject.toml reads the version from belief_nlp/_version.py (one place)."""
+    from importlib.metadata import version
+
+    import belief_nlp
+
+    assert version("belief-nlp") == belief_nlp.__version__

@@ -426,3 +426,18 @@ def test_an_internal_error_is_one_line_with_a_hint(monkeypatch, capsys):
     assert err.count("\n") == 1 and "internal error" in err and "-v" in err and "Traceback" not in err
     assert main(["scenarios", "-v"]) == 1
     assert "Traceback" in capsys.readouterr().err
+
+
+def test_log_lines_go_through_tqdm_on_a_terminal(tmp_path, capsys, monkeypatch):
+    """With a progress bar possible (a terminal), -v log lines are written by
+    tqdm (they would otherwise break the live bar) and still reach stderr."""
+    import belief_nlp._progress as progress
+    from tqdm import tqdm
+
+    writes = []
+    real = tqdm.write
+    monkeypatch.setattr(progress, "_interactive", lambda: True)
+    monkeypatch.setattr(tqdm, "write", classmethod(lambda cls, s, *a, **k: (writes.append(s), real(s, *a, **k))))
+    code, _, err = run(["plan", "paper-multi", "--nodes", 300, "-v", "--out", tmp_path], capsys)
+    assert code == 0, err
+    assert writes and all(w in err for w in writes)

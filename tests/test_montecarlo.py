@@ -39,6 +39,15 @@ def test_clopper_pearson_known_values():
     assert lo < 0.5 < hi and hi - lo == pytest.approx(0.2034, abs=2e-3)
 
 
+
+@pytest.mark.parametrize("k,n,level", [(0, 7, 0.95), (3, 40, 0.95), (17, 20, 0.99), (412, 10_000, 0.9)])
+def test_clopper_pearson_matches_scipy_binomtest(k, n, level):
+    """Our interval (beta quantiles) equals scipy's exact binomial interval."""
+    from scipy.stats import binomtest
+
+    ci = binomtest(k, n).proportion_ci(confidence_level=level, method="exact")
+    assert clopper_pearson(k, n, level) == pytest.approx((ci.low, ci.high), abs=1e-10)
+
 def test_straight_transition_between_walls_matches_brownian_exit_probability():
     # one transition along y = 0.5, walls at distance h = 0.5 above and below: a run fails
     # when the lateral Brownian motion leaves (-h, h) -- a classical series, independent

@@ -64,6 +64,22 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _bars_and_logs():
+    """On a terminal, log lines (-v) are written through tqdm so that they do
+    not break a live progress bar; elsewhere there are no bars to break."""
+    from contextlib import nullcontext
+
+    from .._progress import _interactive
+
+    if not _interactive():
+        return nullcontext()
+    import logging
+
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    return logging_redirect_tqdm(loggers=[logging.getLogger("belief_nlp")])
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``belief-nlp`` with ``argv`` (default: ``sys.argv[1:]``); return the exit code.
 
@@ -83,7 +99,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     undo = _setup_logging(args.quiet, args.verbose)
     run = _Run(args)
     try:
-        return args.func(run)
+        with _bars_and_logs():
+            return args.func(run)
     except ValidationError as exc:
         print(f"{PROG} {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -144,6 +144,16 @@ def _run_dask(cases: Iterator[Case], client: Any, sink: Callable[[Case, list[dic
             submit(nxt)
 
 
+class _Silent:
+    """No progress at all (``progress=False``)."""
+
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
 def run_study(study: Study | str | os.PathLike | dict, out: str | os.PathLike, *, workers: int | None = None,
               dask: Any = None, progress: bool = True, retry_failed: bool = False,
               limit: int | None = None) -> StudyRun:
@@ -164,7 +174,7 @@ def run_study(study: Study | str | os.PathLike | dict, out: str | os.PathLike, *
     -------
     StudyRun with the counts; the rows are in ``out`` (:func:`load_records`).
     """
-    from tqdm.auto import tqdm
+    from .._progress import progress_bar
 
     study = load_study(study)
     store = RecordStore(out)
@@ -176,7 +186,8 @@ def run_study(study: Study | str | os.PathLike | dict, out: str | os.PathLike, *
         skipped += case.key in done
     todo = total - skipped if limit is None else min(limit, total - skipped)
     counts = {"ran": 0, "rows": 0, "failed": 0}
-    bar = tqdm(total=todo, desc=f"study {study.name}", unit="case", disable=not progress)
+    # a bar on a terminal or in Jupyter, log lines every few seconds in a CI log or a file
+    bar = progress_bar(todo, f"study {study.name}", unit="case") if progress else _Silent()
 
     def sink(case: Case, rows: list[dict]) -> None:
         store.append(rows)
