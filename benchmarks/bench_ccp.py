@@ -25,15 +25,14 @@ and prints the Markdown tables.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
+from _record import run_and_record
 
 OUT = Path(__file__).resolve().parent / "results" / "ccp.json"
 LIBRARY = {"equilibrate_enable": False, "chordal_decomposition_enable": False, "presolve_enable": False}
@@ -176,19 +175,7 @@ def main() -> None:
     cases = [dict(kind=kind, seed=s, alpha=al, K=K, check=a.check)
              for K, n in ((20, a.seeds), (40, a.seeds40)) for kind in ("paper-multi", "random-polygons")
              for s in range(n) for al in (0.1, 1.0)]
-    t0 = time.time()
-    load0 = os.getloadavg()
-    with ProcessPoolExecutor(a.workers) as ex:
-        records = list(ex.map(run_case, cases))
-    table = summarise(records)
-    import belief_nlp as bn
-
-    doc = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "load_start": load0,
-                       "load_end": os.getloadavg()}, "version": bn.__version__, "wall_total": time.time() - t0,
-           "args": vars(a) | {"out": str(a.out)}, "table": table, "records": records}
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(doc, indent=1, default=str))
-    print(json.dumps(table, indent=1))
+    run_and_record(run_case, cases, summarise, a, a.out, a.workers)
 
 
 if __name__ == "__main__":

@@ -21,15 +21,14 @@ Writes benchmarks/results/risk_continuous.json and prints the table.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
+from _record import run_and_record
 
 OUT = Path(__file__).resolve().parent / "results" / "risk_continuous.json"
 
@@ -106,18 +105,7 @@ def main() -> None:
     a = ap.parse_args()
     cases = [dict(kind=k, seed=s, alpha=al, delta=d, runs=a.runs) for k in ("paper-multi", "random-polygons")
              for s in range(a.seeds) for al in (0.1, 1.0) for d in (0.05, 0.1)]
-    t0, load0 = time.time(), os.getloadavg()
-    with ProcessPoolExecutor(a.workers) as ex:
-        rows = list(ex.map(run_case, cases))
-    table = summarise(rows)
-    import belief_nlp as bn
-
-    doc = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "load_start": load0,
-                       "load_end": os.getloadavg()}, "version": bn.__version__, "wall_total": time.time() - t0,
-           "args": vars(a) | {"out": str(a.out)}, "table": table, "records": rows}
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(doc, indent=1, default=str))
-    print(json.dumps(table, indent=1))
+    run_and_record(run_case, cases, summarise, a, a.out, a.workers)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,32 @@
+"""Shared by the benchmark scripts: run cases in a process pool and write one
+JSON record (machine, load averages before and after, version, arguments,
+summary table, per-case records)."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Callable
+
+
+def run_and_record(run_case: Callable[[dict], dict], cases: list[dict], summarise: Callable[[list], dict],
+                   args, out: Path, workers: int) -> dict:
+    """``run_case`` over ``cases`` in ``workers`` processes, ``summarise`` of the
+    records; writes ``out`` and prints the table. Returns the document."""
+    import belief_nlp as bn
+
+    t0, load0 = time.time(), os.getloadavg()
+    with ProcessPoolExecutor(workers) as ex:
+        records = list(ex.map(run_case, cases))
+    table = summarise(records)
+    doc = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "load_start": load0,
+                       "load_end": os.getloadavg()}, "version": bn.__version__, "wall_total": time.time() - t0,
+           "args": vars(args) | {"out": str(out)}, "table": table, "records": records}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(doc, indent=1, default=str))
+    print(json.dumps(table, indent=1))
+    return doc
