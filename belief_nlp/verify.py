@@ -355,11 +355,13 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
     hazards = list(scenario.hazards)
     names = [h.name for h in hazards]
     levels = _levels(levels, path.K, len(hazards), scenario.chi2)
-    if budget is not None or risk_kind is not None:
-        from .allocation import RiskBudget
+    from .allocation import RISK_KINDS, RiskBudget
 
-        kind = RiskBudget(budget if budget is not None else 0.1, "optimal", risk_kind or "steps").kind
-        budget = None if budget is None else RiskBudget(budget).budget
+    kind = "steps" if risk_kind is None else str(risk_kind).lower()
+    if kind not in RISK_KINDS:
+        raise ValidationError("risk_kind", f"must be one of {RISK_KINDS}, got {risk_kind!r:.40}")
+    if budget is not None:
+        budget = RiskBudget(budget).budget
     unmeasurable = [f"path.{f} contains NaN or infinite values" for f in ("x", "P", "P_prior", "S")
                     if not np.all(np.isfinite(getattr(path, f)))]
     unmeasurable += [f"path.{f} has entries beyond {_MAX_CHECKABLE:g}; not checked" for f in ("x", "P", "P_prior", "S")

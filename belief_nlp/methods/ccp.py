@@ -39,6 +39,7 @@ import numpy as np
 
 from ..errors import ValidationError
 from ..model import BeliefModel, Layout
+from ..model.data import psd_part
 from ..model.cache import MEMORY, DiskCache, problem_key
 from ..model.cvxpy_form import CompiledProblem, compile_problem, usable_solvers
 from ..smoother.context import Outcome, SmoothingProblem
@@ -50,8 +51,8 @@ __all__ = ["run", "compiled_step", "solver_cascade", "usable_solvers", "initial_
 
 log = logging.getLogger("belief_nlp.smoother")
 
-CHI2_MARGIN = DEFAULT_POLICY.conic
-RHO_BAND = 100.0      # adapted split weights stay within this factor of the first step's (_adapt_rho)      # every collision/containment row of the step asks chi2 (1 + this)
+CHI2_MARGIN = DEFAULT_POLICY.conic      # every collision/containment row of the step asks chi2 (1 + this)
+RHO_BAND = 100.0      # adapted split weights stay within this factor of the first step's (_adapt_rho)
 
 # The step's solver cascade (docs/numerics.md, "CCP solver cascade"). A step
 # takes the first answer a solver reports optimal; an inaccurate answer is
@@ -164,9 +165,7 @@ def _extrapolate(model: BeliefModel, z: Layout, z_prev: Layout, beta: float) -> 
     D = model.data
     y = z.copy()
     y.x[1:] = z.x[1:] + beta * (z.x[1:] - z_prev.x[1:])
-    S = z.S[1:] + beta * (z.S[1:] - z_prev.S[1:])
-    w, V = np.linalg.eigh(S)
-    y.S[1:] = (V * np.maximum(w, 0.0)[:, None, :]) @ np.swapaxes(V, -1, -2)
+    y.S[1:] = psd_part(z.S[1:] + beta * (z.S[1:] - z_prev.S[1:]))
     y.lam = np.maximum(z.lam + beta * (z.lam - z_prev.lam), 0.0)
     if z.tau is not None:
         lo, hi = D.level_bounds

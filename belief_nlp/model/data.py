@@ -17,7 +17,7 @@ import numpy as np
 
 from ..scenario import Scenario
 
-__all__ = ["ProblemData", "Layout", "sym"]
+__all__ = ["ProblemData", "Layout", "sym", "psd_part", "surrogate_information"]
 
 
 @dataclass(frozen=True)
@@ -132,3 +132,20 @@ class Layout:
 def sym(M: np.ndarray) -> np.ndarray:
     """Symmetric part of a (batch of) square matrices."""
     return 0.5 * (M + np.swapaxes(M, -1, -2))
+
+
+def psd_part(M: np.ndarray) -> np.ndarray:
+    """Projection of a (batch of) symmetric matrices on the PSD cone."""
+    w, V = np.linalg.eigh(M)
+    return (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
+
+
+def surrogate_information(D: ProblemData, Q: np.ndarray) -> np.ndarray:
+    """(K, d, d) T_k = Sigma_k^-1 of the continuous-time surrogate from the priors
+    Q (K+1, d, d): T_1 = Q_1, T_k = (Q_{k-1}^-1 + W)^-1 (Sigma_k = P_prior_{k-1} + W,
+    :func:`belief_nlp.risk.surrogate_covariances`)."""
+    T = np.empty((D.K, D.d, D.d))
+    T[0] = D.Q1
+    if D.K > 1:
+        T[1:] = sym(np.linalg.inv(np.linalg.inv(Q[1:-1]) + D.W))
+    return T

@@ -55,7 +55,7 @@ import numpy as np
 
 from . import terms
 from ..allocation import tail
-from .data import Layout, ProblemData
+from .data import Layout, ProblemData, psd_part, surrogate_information
 from .cones import ConeFamily, _pick
 from .doc_budget import _budget_families, _level_majorant
 
@@ -126,16 +126,6 @@ def _blocks(D: ProblemData) -> Blocks:
     T = sym_map(range(3, K + 1)) if D.continuous else None
     ell, e, up, dn = (alloc((K, J)) if D.budget is not None else None for _ in range(4))
     return Blocks(x, Q, S, lam, R_end, R_start, C, R0, Z, u, counter[0], T, ell, e, up, dn)
-
-
-def _surrogate_information(D: ProblemData, point: Layout) -> np.ndarray:
-    """(K, d, d) T_k = Sigma_k^-1 of ``point`` (T_1 = Q_1, T_k = (Q_{k-1}^-1 + W)^-1)."""
-    T = np.empty((D.K, D.d, D.d))
-    T[0] = D.Q1
-    if D.K > 1:
-        T[1:] = np.linalg.inv(np.linalg.inv(point.Q[1:-1]) + D.W)
-        T[1:] = 0.5 * (T[1:] + np.swapaxes(T[1:], -1, -2))
-    return T
 
 
 def tangent(f: ca.Function, n_lin: int | None = None) -> ca.Function:
@@ -217,7 +207,7 @@ class StepLayout:
         v = np.einsum("jfd,kjf->kjd", D.A, point.lam)
         Y = point.Y
         if D.continuous:                    # both ends under T_k = Sigma_k^-1
-            T = _surrogate_information(D, point)
+            T = surrogate_information(D, point.Q)
             R = np.einsum("kjd,kjd->kj", v, np.linalg.solve(T[:, None], v[..., None])[..., 0])
             out[B.R_end] = out[B.R_start] = R
             keep = B.T >= 0
@@ -259,8 +249,7 @@ class StepLayout:
             Q[2:] = zv[B.Q[2:]]
         S = np.zeros((K + 1, d, d))
         S[1:] = zv[B.S[1:]]
-        w, V = np.linalg.eigh(S[1:])
-        S[1:] = (V * np.maximum(w, 0.0)[:, None, :]) @ np.swapaxes(V, -1, -2)
+        S[1:] = psd_part(S[1:])
         lam = np.where(B.lam >= 0, zv[np.maximum(B.lam, 0)], 0.0)
         tau = None
         if B.ell is not None:

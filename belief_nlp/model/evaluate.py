@@ -16,7 +16,7 @@ import numpy as np
 
 from ..scenario import Scenario
 from . import terms
-from .data import Layout, ProblemData, sym
+from .data import Layout, ProblemData, surrogate_information, sym
 
 __all__ = ["BeliefModel"]
 
@@ -105,12 +105,7 @@ class BeliefModel:
         """(K, d, d) Sigma_k^-1 of the continuous-time surrogate, k = 1..K:
         Sigma_k = P_prior_{k-1} + W = Q_{k-1}^-1 + W (k >= 2), Sigma_1 = P0 + W
         (:func:`belief_nlp.risk.surrogate_covariances`)."""
-        D = self.data
-        T = np.empty((D.K, D.d, D.d))
-        T[0] = D.Q1
-        if D.K > 1:
-            T[1:] = sym(np.linalg.inv(np.linalg.inv(z.Q[1:-1]) + D.W))
-        return T
+        return surrogate_information(self.data, z.Q)
 
     def segments(self, z: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The transitions as the exact checks see them, scaled units: means

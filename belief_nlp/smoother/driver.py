@@ -262,11 +262,6 @@ def _budget(scenario: Scenario, risk: Any, allocation: Any, kind: Any) -> RiskBu
     return RiskBudget(risk, allocation, kind)
 
 
-def _warm_bound(scenario: Scenario, warm: WarmStart, budget: RiskBudget) -> float:
-    """The warm start's certified step-time bound."""
-    return path_risk(scenario, warm.path, warm.lam).step_time
-
-
 def _continuous_warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str, budget: RiskBudget,
                            n_pairs: int) -> WarmStart:
     """A warm start for a continuous-time budget. The surrogate asks each level
@@ -327,7 +322,7 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
             except InfeasibleStartError as exc:
                 err = err or exc
                 continue
-            bound = _warm_bound(scenario, warm, budget)
+            bound = path_risk(scenario, warm.path, warm.lam).step_time
             if budget.allocation == "uniform" or bound <= 0.97 * budget.budget:
                 return warm
             best = bound
