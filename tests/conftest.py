@@ -39,6 +39,18 @@ def paper_multi_path_pair(steps_per_segment: int = 4, sensing: float = 1e4):
     return sc, bn.BeliefPath.from_sensing(x, sc.P0, S, W=sc.W)
 
 
+def ccp_problem(sc, path, alpha: float = 1.0):
+    """(model, SmoothingProblem) of ``path``'s warm start, as the CCP run builds them."""
+    from belief_nlp.model import BeliefModel
+    from belief_nlp.smoother.context import SmoothingProblem
+
+    ws = bn.warm_start(sc, path)
+    model = BeliefModel(sc, ws.K, alpha)
+    return model, SmoothingProblem(sc, ws, model, max_iter=1, tol=1e-4, time_limit=None, t0=0.0, solver=None,
+                                   solver_options={}, progress=False, keep_iterates=False, callback=None,
+                                   method="ccp")
+
+
 @pytest.fixture
 def paper_multi_path():
     """(paper-multi scenario, a safe 20-step belief path with S_k = 1e4 I)."""

@@ -11,10 +11,8 @@ import pytest
 
 import belief_nlp as bn
 from belief_nlp.methods.ccp import _extrapolate, compiled_step, initial_rho
-from belief_nlp.model import BeliefModel
-from belief_nlp.smoother.context import SmoothingProblem
 
-from conftest import paper_multi_path_pair
+from conftest import ccp_problem, paper_multi_path_pair
 
 
 @pytest.fixture(scope="module")
@@ -22,12 +20,7 @@ def small():
     return paper_multi_path_pair(steps_per_segment=2)          # K = 10
 
 
-def _problem(sc, path, alpha=1.0):
-    ws = bn.warm_start(sc, path)
-    model = BeliefModel(sc, ws.K, alpha)
-    return model, SmoothingProblem(sc, ws, model, max_iter=1, tol=1e-4, time_limit=None, t0=0.0, solver=None,
-                                   solver_options={}, progress=False, keep_iterates=False, callback=None,
-                                   method="ccp")
+_problem = ccp_problem
 
 
 def test_extrapolated_point_is_a_valid_linearisation_point(small):

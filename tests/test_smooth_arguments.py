@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import belief_nlp as bn
-import belief_nlp.methods.ccp as ccp_method
+import belief_nlp.methods.ccp_cascade as ccp_cascade
 from belief_nlp.errors import ValidationError
 
 from conftest import paper_multi_path_pair
@@ -66,7 +66,7 @@ def test_a_nonsense_solver_answer_is_a_failed_subproblem(small, monkeypatch, fau
     NaN vector: the run ends with a typed status, the answer is verified and
     never above the warm start."""
     sc, path = small
-    real = ccp_method._solve
+    real = ccp_cascade._solve
     calls = []
 
     def lying(step, *args, **kwargs):
@@ -78,8 +78,8 @@ def test_a_nonsense_solver_answer_is_a_failed_subproblem(small, monkeypatch, fau
                "nan": np.where(np.arange(zv.size) % 7 == 0, np.nan, zv)}[fault]
         return "optimal", bad, t, n
 
-    monkeypatch.setattr(ccp_method, "_solve", lambda *a, **k: ccp_method._checked(*lying(*a, **k), a[0]))
-    res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=6)
+    monkeypatch.setattr(ccp_cascade, "_solve", lambda *a, **k: ccp_cascade._checked(*lying(*a, **k), a[0]))
+    res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=6, active_set=False)     # CVXPY steps only
     assert res.status in ("solver_failed", "infeasible_iterate") and not res.success
     assert res.safe and res.cost <= res.initial_cost
     assert bn.verify(sc, res.path, certificates=res.certificates).proof == "certificates+sampling"

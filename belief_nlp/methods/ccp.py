@@ -31,17 +31,20 @@ from __future__ import annotations
 
 import logging
 import time
-import warnings
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import ValidationError
 from ..model import BeliefModel, Layout
 from ..model.data import psd_part
 from ..model.cache import MEMORY, DiskCache, problem_key
+from ..geometry.transitions import transition_minimiser
+from ..model.conic_form import ConicStep, conic_step
 from ..model.cvxpy_form import CompiledProblem, compile_problem, usable_solvers
+from .ccp_cascade import (SOLVER_DEFAULTS,  # noqa: F401  (re-exported)
+                           _check_solver, _check_solver_options, _checked, _solve, _StepAnswers,
+                          solver_cascade)
 from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Method, Option, register
@@ -53,78 +56,18 @@ log = logging.getLogger("belief_nlp.smoother")
 
 CHI2_MARGIN = DEFAULT_POLICY.conic      # every collision/containment row of the step asks chi2 (1 + this)
 RHO_BAND = 100.0      # adapted split weights stay within this factor of the first step's (_adapt_rho)
-
-# The step's solver cascade (docs/numerics.md, "CCP solver cascade"). A step
-# takes the first answer a solver reports optimal; an inaccurate answer is
-# kept while the cheaper entries are tried, and taken if none is optimal (the
-# exact check and the monotone test still decide); an answer they refuse
-# (solver inaccuracy: the exact step is monotone and feasible) sends the
-# step on to the next entry (_StepAnswers). Entries: the chosen solver with the
-# library's settings (and the user's solver_options), the same solver with
-# its own defaults, Clarabel with its defaults, SCS at high accuracy, then any
-# other installed solver able to take the step, with its defaults.
-#
-# Clarabel's library settings: chordal decomposition and presolve off (the PSD
-# cones are 2x2 to 6x6, nothing to decompose; with both off Clarabel accepts
-# data updates, so CVXPY re-uses one solver object across iterations,
-# ``warm_start=True``), equilibration off (measured in benchmarks/bench_ccp.py).
-SOLVER_DEFAULTS = {"CLARABEL": {"equilibrate_enable": False, "chordal_decomposition_enable": False,
-                                "presolve_enable": False}}
-HIGH_ACCURACY = {"SCS": {"eps_abs": 1e-7, "eps_rel": 1e-7, "max_iters": 100_000}}
-REUSE = {"CLARABEL"}
-TIME_LIMIT_OPTION = {"CLARABEL": "time_limit", "SCS": "time_limit_secs"}
-
-
-def solver_cascade(solver: str, options: dict | None = None, budget: bool = False) -> list[tuple[str, str, dict]]:
-    """The CCP step's cascade for ``solver``: [(solver, label, settings), ...]
-    (see the comment above; installed solvers only). ``budget``: the step of a
-    risk allocation, whose exponential budget cones Clarabel answers only
-    inaccurately without presolve and equilibration (24 of 24 steps on
-    paper-multi at Delta = 0.05; docs/numerics.md): its defaults come first."""
-    usable = usable_solvers()
-    lib = {} if budget else SOLVER_DEFAULTS.get(solver, {})
-    out = [(solver, "library" if lib else "defaults", {**lib, **(options or {})})]
-    if solver in SOLVER_DEFAULTS and out[0][2]:
-        out.append((solver, "defaults", {}))
-    if budget and solver in SOLVER_DEFAULTS:        # the library settings second (a defaults failure is rare)
-        out.append((solver, "library", {**SOLVER_DEFAULTS[solver], **(options or {})}))
-    for name, label, opts in (("CLARABEL", "defaults", {}), ("SCS", "high accuracy", HIGH_ACCURACY["SCS"])):
-        if name in usable and not any(n == name and lab == label for n, lab, _ in out):
-            out.append((name, label, dict(opts)))
-    for name in usable:
-        if all(n != name for n, _, _ in out):
-            out.append((name, "defaults", {}))
-    return out
-
-
-def _check_solver(name: str) -> str | None:
-    import cvxpy as cp
-
-    ok = usable_solvers()
-    if name.upper() not in ok:
-        if name.upper() not in cp.installed_solvers():
-            return (f"{name!r} is not installed; usable installed solvers for the CCP step: {ok} "
-                    f"(bn.available_solvers('ccp'))")
-        return f"{name!r} cannot solve the CCP step (it needs PSD and exponential cones); usable installed solvers: {ok}"
-    return None
-
-
-def _check_solver_options(solver: str, options: dict) -> None:
-    if solver == "CLARABEL":
-        import clarabel
-
-        st = clarabel.DefaultSettings()
-        for k in options:
-            if not hasattr(st, k):
-                raise ValidationError("solver_options", f"{k!r} is not a Clarabel setting")
-
+ACTIVE_FACTOR = 3.0   # the active-set step keeps the pairs whose exact squared distance is below this x chi2
+ACTIVE_ROUNDS = 3      # solves of the active-set step, each adding the pairs its answer came near
+PROXIMAL = 1e-4       # weight of the cascade's proximal step (scaled units; docs/numerics.md, "CCP solver cascade")
 
 def compiled_step(model: BeliefModel, solver: str = "CLARABEL", cache_dir: str | Path | bool | None = None,
-                  chi2_margin: float = CHI2_MARGIN) -> tuple[CompiledProblem, str, DiskCache | None]:
+                  chi2_margin: float = CHI2_MARGIN, proximal: float = 0.0) -> tuple[CompiledProblem, str, DiskCache | None]:
     """The compiled CVXPY problem of ``model``'s CCP step: from memory, from the
     disk cache (``cache_dir``: True = the user's cache folder, or a folder),
-    else compiled. Returns (problem, where it came from, the disk cache)."""
-    key = problem_key(model.data, chi2_margin, solver)
+    else compiled. ``proximal``: the step with that proximal weight
+    (:func:`belief_nlp.model.doc.convex_form`). Returns (problem, where it
+    came from, the disk cache)."""
+    key = problem_key(model.data, chi2_margin, solver, proximal)
     hit = MEMORY.get(key)
     disk = None
     if cache_dir:
@@ -136,14 +79,33 @@ def compiled_step(model: BeliefModel, solver: str = "CLARABEL", cache_dir: str |
         if isinstance(hit, CompiledProblem):
             MEMORY.put(key, hit)
             return hit, "disk", disk
-    form = model.convex_form if chi2_margin == CHI2_MARGIN else None
+    form = model.convex_form if chi2_margin == CHI2_MARGIN and not proximal else None
     if form is None:
         from ..model.doc import convex_form
 
-        form = convex_form(model.data, chi2_margin)
+        form = convex_form(model.data, chi2_margin, proximal)
     step = compile_problem(form)
     MEMORY.put(key, step)
     return step, "compiled", disk
+
+
+def conic_step_of(model: BeliefModel) -> ConicStep:
+    """The model's step as Clarabel's own data (:mod:`belief_nlp.model.conic_form`), built once per model key."""
+    key = problem_key(model.data, CHI2_MARGIN, "CLARABEL-direct")
+    hit = MEMORY.get(key)
+    if hit is None:
+        hit = conic_step(model.convex_form)
+        MEMORY.put(key, hit)
+    return hit
+
+
+def active_pairs(model: BeliefModel, point: Layout, hazards) -> np.ndarray:
+    """Pairs (K * J, flattened k * J + j) whose transition comes within
+    ACTIVE_FACTOR chi2 (squared Mahalanobis distance, exact minimum over the
+    segment) of its hazard at ``point``: the pairs the active-set step keeps."""
+    level = ACTIVE_FACTOR * model.data.chi2
+    tm = transition_minimiser(*model.segments(point), hazards, threshold=level)   # dist2 on the right side of it
+    return np.asarray(tm.dist2, float).ravel() < level
 
 
 def initial_rho(model: BeliefModel, z: Layout) -> np.ndarray:
@@ -192,91 +154,9 @@ def _adapt_rho(model: BeliefModel, z: Layout, z_new: Layout, rho_s: np.ndarray, 
     return out
 
 
-def _solve(step: CompiledProblem, solver: str, options: dict, time_left: float | None = None,
-           reuse: bool = False) -> tuple[str, np.ndarray | None, float, int]:
-    """Solve the step with exactly these settings: (status, z or None, solver time, iterations).
-
-    ``reuse``: update the solver object of the previous solve in place (CVXPY's
-    ``warm_start``), which keeps that solve's settings where ``options`` is
-    silent; otherwise a new solver object gets exactly ``options``."""
-    import cvxpy as cp
-
-    opts = dict(options)
-    if time_left is not None and solver in TIME_LIMIT_OPTION:     # the run's budget bounds one solve too
-        opts[TIME_LIMIT_OPTION[solver]] = max(float(time_left), 1e-3)
-    try:
-        with warnings.catch_warnings():       # "may be inaccurate": the status says so, and the exact check decides
-            warnings.simplefilter("ignore", UserWarning)
-            step.problem.solve(solver=solver, warm_start=reuse and solver in REUSE, **opts)
-    except (cp.error.SolverError, ValueError, ArithmeticError) as exc:
-        return f"error: {str(exc).splitlines()[0][:120]}", None, 0.0, 0
-    st = step.problem.solver_stats
-    status = str(step.problem.status)
-    ok = status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) and step.z.value is not None
-    return _checked(status, np.asarray(step.z.value, float) if ok else None, float(st.solve_time or 0.0),
-                    int(st.num_iters or 0), step)
-
-
-class _StepAnswers:
-    """The answers of one CCP step along the cascade, most trusted first.
-
-    Solves lazily: an answer reported optimal is returned at once; one
-    reported inaccurate waits until the interior-point entries of the cascade
-    (Clarabel's, ~0.1-0.5 s each) are spent, and is returned before the
-    first-order and other solvers are tried (SCS at high accuracy takes 10-80 s
-    on a K = 20 step). Each solve is recorded in ``attempts``."""
-
-    CHEAP = {"CLARABEL"}
-
-    def __init__(self, step: CompiledProblem, cascade: list, problem: SmoothingProblem, fail: bool = False):
-        self.step, self.cascade, self.problem, self.fail = step, cascade, problem, fail
-        self.pos = 0
-        self.inaccurate: list = []
-        self.attempts: list[dict] = []
-        self.solve_time, self.iterations = 0.0, 0
-
-    def next(self) -> tuple[str, str, np.ndarray] | None:
-        """(solver label, status, z) of the next answer, or None when the cascade is spent."""
-        import cvxpy as cp
-
-        while True:
-            more = self.pos < len(self.cascade) and not self.problem.out_of_time()
-            if more and (self.cascade[self.pos][0] in self.CHEAP or not self.inaccurate):
-                solver, label, opts = self.cascade[self.pos]
-                self.pos += 1
-                if self.fail:                                   # injected fault (tests)
-                    status, zv, t, n = "injected failure", None, 0.0, 0
-                else:
-                    status, zv, t, n = _solve(self.step, solver, opts, self.problem.time_left(),
-                                              reuse=self.pos == 1)      # the first entry's solver object lives on
-                self.solve_time, self.iterations = self.solve_time + t, self.iterations + n
-                self.attempts.append({"solver": solver, "settings": label, "status": status, "solve_time": t,
-                                      "iterations": n})
-                if zv is None:
-                    continue
-                if status == cp.OPTIMAL:
-                    return f"{solver} ({label})", status, zv
-                self.inaccurate.append((f"{solver} ({label})", status, zv))
-            elif self.inaccurate:
-                return self.inaccurate.pop(0)
-            else:
-                return None
-
-
-def _checked(status: str, zv: np.ndarray | None, t: float, n: int, step: CompiledProblem):
-    """A solver answer that is not a finite vector of the right length, or whose
-    entries are absurd (|z| > 1e12 in the model's O(1) units), is a failed
-    subproblem, whatever status the solver reported."""
-    if zv is not None:
-        zv = np.asarray(zv, dtype=float)
-        if zv.shape != (step.layout.blocks.n,) or not np.all(np.isfinite(zv)) or np.max(np.abs(zv)) > 1e12:
-            return f"{status} (unusable answer)", None, t, n
-    return status, zv, t, n
-
-
 def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | None = None,
         cache_dir: str | Path | bool | None = None, constraints: Callable | None = None,
-        hook: Callable | None = None, accelerate: bool = True, _fail_at: int | None = None, _start: Layout | None = None) -> Outcome:
+        hook: Callable | None = None, accelerate: bool = True, active_set: bool = True, _fail_at: int | None = None, _start: Layout | None = None) -> Outcome:
     """CCP from the problem's start (see the module doc and :data:`METHOD`).
 
     ``_start`` (for composite methods): continue from this exactly safe point
@@ -303,8 +183,52 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     # iter_count (CCP steps), cpu_time (this process, the run's steps)
     # steps: per iteration, the solver (and settings) whose answer was taken and every attempt
     stats = {"compile": origin, "build_time": build_time, "solver_iterations": 0, "return_status": "",
-             "iter_count": 0, "solve_time": 0.0, "cpu_time": 0.0, "steps": []}
+             "iter_count": 0, "solve_time": 0.0, "cpu_time": 0.0, "steps": [], "active_pairs": []}
     cascade = solver_cascade(solver, problem.solver_options, budget=problem.model.data.budget is not None)
+    prox: dict = {}            # the proximal step: compiled on first use; not with a hook's own constraints
+    # the active-set step (Clarabel's own data, far pairs left out): without
+    # user constraints and a risk budget, with Clarabel
+    conic = None
+    if active_set and constraints is None and hook is None and D.budget is None and solver == "CLARABEL":
+        t0 = time.perf_counter()
+        conic = conic_step_of(model)
+        stats["active_set_build_time"] = time.perf_counter() - t0
+        cascade = [("CLARABEL", "active set", cascade[0][2])] + cascade
+
+    def special(base: Layout, rho_s_: np.ndarray, rho_e_: np.ndarray) -> dict[str, Callable]:
+        def proximal(opts: dict, time_left: float | None):
+            if prox.get("hooked"):
+                return None
+            if "step" not in prox:
+                t0 = time.perf_counter()
+                ps = compiled_step(model, "CLARABEL", cache_dir, proximal=PROXIMAL)[0]
+                prox["step"] = ps.with_constraints(constraints(ps)) if constraints is not None else ps
+                stats["proximal_build_time"] = time.perf_counter() - t0
+            prox["step"].set_point(base, rho_s_, rho_e_)
+            return _solve(prox["step"], "CLARABEL", opts, time_left)
+
+        def active(opts: dict, time_left: float | None):
+            # constraint generation: pairs the answer comes near join the step,
+            # which is solved again (at most ACTIVE_ROUNDS times; the exact check decides)
+            keep = active_pairs(model, base, problem.hazards_scaled)
+            t_all, n_all = 0.0, 0
+            for _ in range(ACTIVE_ROUNDS):
+                status, zv, t, n = conic.solve(base, rho_s_, rho_e_, keep, opts, time_left)
+                t_all, n_all = t_all + t, n_all + n
+                if zv is None or not np.all(np.isfinite(zv)):
+                    break
+                try:
+                    near = active_pairs(model, model.tighten(step.layout.extract(zv, base)), problem.hazards_scaled)
+                except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+                    break
+                if not np.any(near & ~keep):
+                    break
+                keep = keep | near
+            stats["active_pairs"].append(int(keep.sum()))
+            return _checked(status, zv, t_all, n_all, step)
+
+        return {"proximal": proximal, "active set": active}
+
     z_prev, t_mom = None, 1.0
     cpu0 = time.process_time()
     for it in range(first, problem.max_iter + 1):
@@ -322,15 +246,21 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         if accelerate and z_prev is not None:
             beta = (t_mom - 1) / t_next
             if beta > 0:
-                bases.insert(0, (_extrapolate(model, z, z_prev, beta), cascade[:1]))
+                bases.insert(0, (_extrapolate(model, z, z_prev, beta), cascade[:1]))    # one entry only
         for base, entries in bases:
-            step.set_point(base, rho_s, rho_e)
+            prepare = None
+            if conic is None:
+                step.set_point(base, rho_s, rho_e)
+            else:                         # only when a CVXPY entry runs (the active-set step has its own data)
+                prepare = (lambda b=base, rs=rho_s, re_=rho_e: step.set_point(b, rs, re_))
             if hook is not None:
                 extra = hook(step, it)
                 if extra:
                     step = step.with_constraints(extra)
                     step.set_point(base, rho_s, rho_e)
-            answers = _StepAnswers(step, entries, problem, fail=_fail_at is not None and it >= _fail_at)
+                    prox["hooked"] = True
+            answers = _StepAnswers(step, entries, problem, fail=_fail_at is not None and it >= _fail_at,
+                                   special=special(base, rho_s, rho_e), prepare=prepare)
             plain = base is z
             while (ans := answers.next()) is not None:
                 name, sstat, zv = ans
@@ -361,8 +291,12 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
                 else:
                     taken = (name, sstat, chk, c_new, ctrl, info, kgap)
                     break
-                log.warning("CCP iteration %d: the answer of %s is refused (%s); solving more accurately",
-                            it, name, refused[-1])
+                if "active set" in name:       # a pair left out came near: the full step decides
+                    log.info("CCP iteration %d: the active-set answer is refused (%s); solving the full step",
+                             it, refused[-1])
+                else:
+                    log.warning("CCP iteration %d: the answer of %s is refused (%s); solving more accurately",
+                                it, name, refused[-1])
             attempts += answers.attempts
             stime, sit = stime + answers.solve_time, sit + answers.iterations
             if taken is not None:
@@ -452,6 +386,9 @@ METHOD = register(Method(
                              "add for the rest of the run", _callable_or_none),
         "accelerate": Option(True, "linearise first at an extrapolated point (Nesterov momentum); taken only "
                                    "when it lowers the cost", lambda v: None if isinstance(v, bool) else "must be True or False"),
+        "active_set": Option(True, "solve each step first with only the pairs within "
+                                   f"{ACTIVE_FACTOR:g} chi2 (the full step when the exact check refuses)",
+                             lambda v: None if isinstance(v, bool) else "must be True or False"),
         "_fail_at": Option(None, "testing: make every subproblem from this iteration on fail"),
         "_start": Option(None, "composite methods: continue from this exactly safe point"),
     },

@@ -39,10 +39,10 @@ __all__ = ["problem_key", "MemoryCache", "DiskCache", "default_cache_dir", "MEMO
 log = logging.getLogger("belief_nlp.cache")
 
 # bump when the model's structure changes in a way the versions do not show
-MODEL_REVISION = 3
+MODEL_REVISION = 4
 
 
-def problem_key(D: ProblemData, chi2_margin: float, solver: str) -> str:
+def problem_key(D: ProblemData, chi2_margin: float, solver: str, proximal: float = 0.0) -> str:
     """Hash of everything that shapes the compiled problem."""
     import casadi
 
@@ -50,6 +50,7 @@ def problem_key(D: ProblemData, chi2_margin: float, solver: str) -> str:
 
     h = hashlib.sha256()
     for part in (MODEL_REVISION, __version__, _cvxpy_version(), casadi.__version__, solver, repr(chi2_margin),
+                 *((repr(proximal),) if proximal else ()),
                  D.sigma, D.chi2, D.chi2_target, D.budget, D.continuous, D.alpha, D.K, D.d, D.hazard_names):
         h.update(repr(part).encode())
     for arr in (D.x0, D.P0, D.W, D.A, D.b, D.face_mask, D.At, D.bt):

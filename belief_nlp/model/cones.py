@@ -19,13 +19,16 @@ class ConeFamily:
     """``batch`` cones of one kind. ``expr`` stacks their entries, affine in z:
     psd: the full n x n matrices row-major (n = ``dim``); soc: (t, y) with
     ||y|| <= t (length ``dim``); exp: (a, b, c) with b exp(a / b) <= c; nonneg:
-    one entry per cone."""
+    one entry per cone. ``owner``: per cone, the (transition, hazard) pair it
+    belongs to as k * J + j (0-based transition k), -1 for cones of no pair
+    (the active-set step, :mod:`.conic_form`, leaves far pairs out)."""
 
     name: str
     kind: str
     dim: int
     batch: int
     expr: ca.SX
+    owner: np.ndarray | None = None
 
 
 def _pick(z: ca.SX, idx: np.ndarray) -> ca.SX:

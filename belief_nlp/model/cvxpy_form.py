@@ -204,6 +204,28 @@ def _affine_cvx(cp, z, split: AffineSplit, params: _Params):
     return expr
 
 
+def _square_root(H: sp.csr_matrix) -> sp.csr_matrix:
+    """F with F^T F = H (H symmetric PSD), block diagonal like H: one dense
+    eigen-decomposition per connected block of H's sparsity (the means' control
+    term couples neighbouring steps; a proximal term is diagonal), so F stays
+    as sparse as H and the solver's quadratic data with it."""
+    from scipy.sparse.csgraph import connected_components
+
+    n_blocks, label = connected_components(H, directed=False)
+    rows, cols, vals = [], [], []
+    Hd = H.tocsr()
+    for b in range(n_blocks):
+        idx = np.flatnonzero(label == b)
+        w, V = np.linalg.eigh(Hd[idx][:, idx].toarray())
+        Fb = (V * np.sqrt(np.maximum(w, 0.0))).T
+        r, c = np.nonzero(Fb)
+        rows.append(idx[r])
+        cols.append(idx[c])
+        vals.append(Fb[r, c])
+    n = H.shape[0]
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+
+
 def compile_problem(form: ConvexForm) -> CompiledProblem:
     """Build the CVXPY problem of ``form`` (the canonicalisation happens at the
     first solve and is cached by CVXPY)."""
@@ -236,10 +258,7 @@ def compile_problem(form: ConvexForm) -> CompiledProblem:
     act = np.unique(hr)                                   # variables with curvature (the means)
     pos = np.full(n, -1)
     pos[act] = np.arange(act.size)
-    Hd = np.zeros((act.size, act.size))
-    Hd[pos[hr], pos[hc]] = np.array(Hs.nonzeros())
-    w, V = np.linalg.eigh(Hd)
-    Fq = (V * np.sqrt(np.maximum(w, 0.0))).T
+    Fq = _square_root(sp.csr_matrix((np.array(Hs.nonzeros()), (pos[hr], pos[hc])), shape=(act.size, act.size)))
     grad = ca.substitute(ca.gradient(form.objective, form.z), form.z, ca.DM.zeros(n))
     dep = _param_rows(grad, form.p)
     q0 = np.where(dep, 0.0, ca.Function("q0", [form.p], [grad])(np.ones(form.p.numel())).full().ravel())

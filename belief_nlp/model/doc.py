@@ -279,12 +279,19 @@ class ConvexForm:
     chi2: float
 
 
-def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
+def convex_form(D: ProblemData, chi2_margin: float = 2e-7, proximal: float = 0.0) -> ConvexForm:
     """Build the convexified DOC program of ``D`` symbolically (see module doc).
 
     chi2_margin : every collision and containment constraint uses
         chi2 (1 + chi2_margin), so that solver rounding never leaves an answer
         on the wrong side of the exact check.
+    proximal : eps >= 0 of the proximal term eps/2 (||dx||^2 + ||S - S~||^2 +
+        ||lam - lam~||^2) added to the objective (scaled units). It is >= 0 and
+        zero at the point, so the step still majorises the cost and its answer
+        is monotone and safe; it makes the step strongly convex in the
+        directions the cost leaves flat (rank-deficient S, inactive
+        certificates), where interior-point solvers otherwise fail
+        (docs/numerics.md, "CCP solver cascade").
     """
     K, J, F, d = D.K, D.J, D.F, D.d
     N = D.At.shape[0]
@@ -328,15 +335,24 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
     # -log det Q_k: its conic epigraph (u_k); log det Q_1 is a constant
     neg_logdet_q = -sum(ca.sum1(_pick(z, B.u[k][:, None])) for k in range(2, K + 1)) if K > 1 else 0
     objective = control + 0.5 * D.alpha * (concave + neg_logdet_q)
+    if proximal > 0:
+        keep = B.lam >= 0
+        lam_flat = np.flatnonzero(keep)               # index into point.lam.ravel() (K, J, F)
+        dlam = _pick(z, B.lam[keep][:, None]) - parts[3][lam_flat.tolist()]
+        dS = [S[k] - St[k] for k in range(1, K + 1)]
+        objective = objective + 0.5 * proximal * (ca.sumsqr(_pick(z, B.x[1:].reshape(-1, 1)))
+                                                  + sum(ca.sumsqr(e) for e in dS) + ca.sumsqr(dlam))
 
     fam: list[ConeFamily] = []
 
-    def add(name: str, kind: str, dim: int, items: list) -> None:
+    def add(name: str, kind: str, dim: int, items: list, owner: np.ndarray | None = None) -> None:
         if items:
-            fam.append(ConeFamily(name, kind, dim, len(items), ca.vertcat(*[ca.vec(e.T) for e in items])))
+            fam.append(ConeFamily(name, kind, dim, len(items), ca.vertcat(*[ca.vec(e.T) for e in items]), owner))
 
     lam_idx = B.lam[B.lam >= 0]
-    fam.append(ConeFamily("lam_nonneg", "nonneg", 1, lam_idx.size, _pick(z, lam_idx[:, None])))
+    lam_owner = np.nonzero(B.lam >= 0)                 # (k, j, f) of each entry, in lam_idx's order
+    fam.append(ConeFamily("lam_nonneg", "nonneg", 1, lam_idx.size, _pick(z, lam_idx[:, None]),
+                          lam_owner[0] * J + lam_owner[1]))
     add("sensing_psd", "psd", d, [S[k] for k in range(1, K + 1)])
     Winv = ca.DM(np.linalg.inv(D.W))
     add("kalman_lmi", "psd", 2 * d, [terms.kalman_lmi(Q[k], Y[k - 1], Winv) for k in range(2, K + 1)])
@@ -383,8 +399,9 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
         lev = ca.vec(Lev.T)[pick].T
         quad = ca.vertcat(*[ca.vec(qq.T)[pick].T for qq in Quad]) if Quad else ca.SX(0, nb)
         h1, h2 = pair.map(nb)(lam, lt, R, x, xt[:, kx.tolist()], Yv + ca.DM(Yc), A, b, r, lev, quad)
-        fam.append(ConeFamily(f"h1_{name}", "psd", d + 1, nb, ca.vec(h1)))
-        fam.append(ConeFamily(f"h2_{name}", "soc", d + 2 + len(Quad), nb, ca.vec(h2)))
+        owner = (kk - 1) * J + jj
+        fam.append(ConeFamily(f"h1_{name}", "psd", d + 1, nb, ca.vec(h1), owner))
+        fam.append(ConeFamily(f"h2_{name}", "soc", d + 2 + len(Quad), nb, ca.vec(h2), owner))
     # k = 1, start end (C8): v^T P0 v <= 2 lam^T (A x0 - b) - chi2, exactly (x0 fixed),
     # as eps0^2 R0 <= 2 lam^T (A x0 - b) - chi2 and R0 >= ||L0^T v / eps0||^2 (an LMI), with
     # P0 = L0 L0^T and eps0 = ||L0||: the LMI's entries are O(1) however small P0 is (the
@@ -399,11 +416,12 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7) -> ConvexForm:
         w = terms.bilinear(lam, X[0], A, b) - Lev[0, j] - eps0**2 * R0
         h2_first.append(_rsoc(w, ca.vertcat(*[qq[0, j] for qq in Quad])) if Quad else w)
         h1_first.append(terms.h1_lmi(R0, ca.mtimes(ca.DM(L0 / eps0).T, ca.mtimes(A.T, lam)), ca.DM.eye(d)))
+    first = np.arange(len(h2_first))                   # pairs (1, j)
     if Quad:
-        add("start_h2", "soc", 2 + len(Quad), h2_first)
+        add("start_h2", "soc", 2 + len(Quad), h2_first, first)
     elif h2_first:
-        add("start_h2", "nonneg", 1, h2_first)
-    add("start_h1", "psd", d + 1, h1_first)
+        add("start_h2", "nonneg", 1, h2_first, first)
+    add("start_h1", "psd", d + 1, h1_first, first)
     t1, t2 = [], []
     for n in range(N):
         m1, m2 = terms.target_lmis(X[K], z[int(B.C[n])], Y[K], ca.DM(D.At[n]), D.bt[n], chi2_t)
