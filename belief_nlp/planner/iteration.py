@@ -19,7 +19,7 @@ import numpy as np
 
 from .collision import CollisionChecker
 from .kernels import _any, chol_factors, eigh_single
-from .sampling import BeliefSampler
+from .sampling import SampleStream
 from .tree import BeliefTree, LiveView
 
 __all__ = ["IterationMixin"]
@@ -94,7 +94,7 @@ class IterationMixin:
         return pe + self._W_entries * w
 
     # --------------------------------------------------------------- iterate
-    def _iterate(self, rng, sampler: BeliefSampler, checker: CollisionChecker, tree: BeliefTree,
+    def _iterate(self, samples: SampleStream, checker: CollisionChecker, tree: BeliefTree,
                  best: float) -> int | None:
         """One sampling attempt; returns the new node's index or None."""
         o = self.options
@@ -109,16 +109,16 @@ class IterationMixin:
         live = tree.live_arrays()
         live_idx, X = live.idx, live.x
         r = self._radius(live_idx.size)
-        xs, Ps = sampler.draw(rng)
+        xs, Ps, lin = samples.next()
 
         # nearest in the (matrix-minimum) edge cost, then steer
         diff = xs - X
         dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        _, Ls_inv, _, _ = chol_factors(Ps)
-        if entries:
+        if entries and lin is not None:
             s = self._priors(live, dist if per_metre else None)
-            info = metric.nearest_info2(s[0], s[1], s[2], Ls_inv[0, 0], Ls_inv[1, 0], Ls_inv[1, 1])
+            info = metric.nearest_info2(s[0], s[1], s[2], *lin)
         else:
+            _, Ls_inv, _, _ = chol_factors(Ps)
             info = metric.nearest_info(live.P, dist if per_metre else np.ones_like(dist), Ps, Ls_inv)
         D = dist + metric.weight * info
         j = int(D.argmin())

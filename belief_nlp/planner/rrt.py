@@ -135,7 +135,7 @@ class IGRRTStar(IterationMixin):
         t_start = time.perf_counter()
         cpu_start = time.process_time()
         rng = np.random.default_rng(o.seed)
-        sampler = BeliefSampler(sc, o.eig_range, o.eig_ratio, o.goal_bias)
+        samples = BeliefSampler(sc, o.eig_range, o.eig_ratio, o.goal_bias).stream(rng)
         checker = CollisionChecker(sc, o.safety_margin, o.collision_chi2)
         tree = BeliefTree(self.dim, capacity=min(o.n_nodes, 4096))
         self.tree_ = tree
@@ -173,7 +173,7 @@ class IGRRTStar(IterationMixin):
                     stop_reason = f"attempt limit of {max_attempts} reached"
                     break
                 stats["attempts"] += 1
-                q = self._iterate(rng, sampler, checker, tree, best)
+                q = self._iterate(samples, checker, tree, best)
                 if q is None:
                     continue
                 # best cost: costs of goal nodes may have dropped by rewiring
