@@ -212,6 +212,8 @@ class CollisionChecker:
         screen), and every end of a sub-interval was the middle or an end of
         an earlier one, so its ellipse was tested already.
         """
+        if self.dim == 2:
+            return self._refine2(x0, x1, P0, W_e, e, j)
         n = x0.shape[0]
         dx = x1 - x0
         sa = np.zeros(e.size)
@@ -221,31 +223,18 @@ class CollisionChecker:
         Pb = P0[e] + W_e[e]
         blocked = np.zeros(n, dtype=bool)
         for depth in range(_DEPTH + 1):
-            if self.dim == 2:
-                # every row at once (fewer calls than compressing first): the
-                # sweep certificate (it implies the face certificates: a
-                # capsule beyond a face misses the polygon), then the middle
-                # witness where it fails
-                r = np.arange(e.size)
-                sm = 0.5 * (sa + sb)
-                xm = x0[e] + sm[:, None] * dx[e]
-                Pm = P0[e] + sm[:, None, None] * W_e[e]
-                seg, mid = _sweep_dist2(xa, xb, Pb, xm, Pm, self.V[j], self.E[j])
-                clear = seg >= self.thr
-                hit = (mid < self.thr_witness) & ~clear
-            else:
-                clear = self._face_certificates(j, xa, xb, Pb) if depth else np.zeros(e.size, dtype=bool)
-                hit = np.zeros(e.size, dtype=bool)
-                r = (~clear).nonzero()[0]
-                if r.size and depth == 0:
-                    hit[r] = self._ellipse_hits(xb[r], Pb[r], j[r])
-                    r = r[~hit[r]]
-                if r.size:
-                    sm = 0.5 * (sa[r] + sb[r])
-                    er = e[r]
-                    xm = x0[er] + sm[:, None] * dx[er]
-                    Pm = P0[er] + sm[:, None, None] * W_e[er]
-                    hit[r] = self._ellipse_hits(xm, Pm, j[r])
+            clear = self._face_certificates(j, xa, xb, Pb) if depth else np.zeros(e.size, dtype=bool)
+            hit = np.zeros(e.size, dtype=bool)
+            r = (~clear).nonzero()[0]
+            if r.size and depth == 0:
+                hit[r] = self._ellipse_hits(xb[r], Pb[r], j[r])
+                r = r[~hit[r]]
+            if r.size:
+                sm = 0.5 * (sa[r] + sb[r])
+                er = e[r]
+                xm = x0[er] + sm[:, None] * dx[er]
+                Pm = P0[er] + sm[:, None, None] * W_e[er]
+                hit[r] = self._ellipse_hits(xm, Pm, j[r])
             blocked[e[hit]] = True
             if depth == _DEPTH or not r.size:
                 e = e[r[~hit[r] & ~clear[r]]]
@@ -259,6 +248,48 @@ class CollisionChecker:
             Pb = np.concatenate([Pm, Pb[r]])
             if not e.size:
                 break
+        return self._exact_rest(x0, x1, P0, W_e, e, blocked)
+
+    def _refine2(self, x0, x1, P0, W_e, e, j) -> np.ndarray:
+        """:meth:`_refine` in 2-D: every row at once (fewer calls than
+        compressing first): the sweep certificate (it implies the face
+        certificates: a capsule beyond a face misses the polygon), then the
+        middle witness where it fails. The data of each pair (its edge's
+        start, step, covariance, noise, and its polygon) is gathered once and
+        carried along the splits."""
+        blocked = np.zeros(x0.shape[0], dtype=bool)
+        xs = x0[e]
+        dx = x1[e] - xs
+        Ps, We, V, E = P0[e], W_e[e], self.V[j], self.E[j]
+        sa = np.zeros(e.size)
+        sb = np.ones(e.size)
+        xa, xb, Pb = xs, xs + dx, Ps + We
+        for depth in range(_DEPTH + 1):
+            sm = 0.5 * (sa + sb)
+            xm = xs + sm[:, None] * dx
+            Pm = Ps + sm[:, None, None] * We
+            seg, mid = _sweep_dist2(xa, xb, Pb, xm, Pm, V, E)
+            clear = seg >= self.thr
+            hit = (mid < self.thr_witness) & ~clear
+            blocked[e[hit]] = True
+            if depth == _DEPTH:
+                e = e[~hit & ~clear]
+                break
+            r = (~(hit | clear | blocked[e])).nonzero()[0]
+            if not r.size:
+                e = e[r]
+                break
+            rr = np.concatenate([r, r])
+            e, xs, dx, Ps, We, V, E = e[rr], xs[rr], dx[rr], Ps[rr], We[rr], V[rr], E[rr]
+            sa, sb = np.concatenate([sa[r], sm[r]]), np.concatenate([sm[r], sb[r]])
+            xa, xb = np.concatenate([xa[r], xm[r]]), np.concatenate([xm[r], xb[r]])
+            Pb = np.concatenate([Pm[r], Pb[r]])
+        return self._exact_rest(x0, x1, P0, W_e, e, blocked)
+
+    def _exact_rest(self, x0, x1, P0, W_e, e, blocked) -> np.ndarray:
+        """The exact check of the edges ``e`` that the refinement left open
+        (and did not block); updates and returns ``blocked``."""
+        n = x0.shape[0]
         undecided = np.zeros(n, dtype=bool)
         undecided[e] = True
         undecided &= ~blocked

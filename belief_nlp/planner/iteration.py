@@ -25,8 +25,6 @@ from .tree import BeliefTree, LiveView
 __all__ = ["IterationMixin"]
 
 _REL_EPS = 1e-12           # relative tie tolerance for cost comparisons
-_UPPER = ([0, 0, 1], [0, 1, 1])   # (11, 12, 22) entries of a 2x2 matrix
-_LOWER = ([0, 1, 1], [0, 0, 1])   # (11, 21, 22)
 _EIG_FLOOR_FACTOR = 1e-3   # samples shrunk below 1e-3 * eig_range[0] are rejected
 
 
@@ -124,7 +122,7 @@ class IterationMixin:
         j = int(D.argmin())
         Dj = D[j]
         t = min(1.0, r / Dj) if Dj > 0 else 1.0
-        x, P = self._steer(X[j], live.P[j], xs, Ps, t)
+        x, P = self._steer(X[j], tree.P[live_idx[j]], xs, Ps, t)
 
         # shrink until the ellipse is clear (exact distance -> number of halvings)
         k = checker.shrink_exponent(x, P)
@@ -163,9 +161,15 @@ class IterationMixin:
             rnodes = live_idx[near[keep]]
             S = np.empty((6, k + rnodes.size))
             S[:3, :k] = self._priors(live, dn if per_metre else None, near)
-            S[3:, :k] = Linv[_LOWER][:, None]
-            pq = P[_UPPER][:, None]
-            S[:3, k:] = pq + self._W_entries * dn[keep] if per_metre else pq + self._W_entries
+            # (scalar fills: cheaper than gathering the entries of 2x2 arrays)
+            (t11, _), (t21, t22) = Linv.tolist()
+            S[3, :k], S[4, :k], S[5, :k] = t11, t21, t22
+            (p11, p12), (_, p22) = P.tolist()
+            if per_metre:
+                S[:3, k:] = np.array([[p11], [p12], [p22]]) + self._W_entries * dn[keep]
+            else:
+                w11, w12, w22 = self._W_list
+                S[0, k:], S[1, k:], S[2, k:] = p11 + w11, p12 + w12, p22 + w22
             S[3:, k:] = tree.le[:, rnodes]
             lossless_all, info_all = metric.edges2(*S)
             lossless, info = lossless_all[:k], info_all[:k]

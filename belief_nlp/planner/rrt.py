@@ -113,6 +113,7 @@ class IGRRTStar(IterationMixin):
         self._entries = self.dim == 2 and self.metric.entries_ok
         We = self.W_edge
         self._W_entries = np.array([[We[0, 0]], [We[0, 1]], [We[1, 1]]]) if self.dim == 2 else None
+        self._W_list = self._W_entries.ravel().tolist() if self.dim == 2 else None
         self.gamma = o.gamma if o.gamma is not None else default_gamma(self.dim, _polytope_volume(sc.domain))
         # Cost-to-go bound for branch-and-bound, h(x, P) = dist_lb(x) + weight * info_lb(P):
         # dist_lb = largest violated target face (a lower bound of the Euclidean
@@ -190,7 +191,12 @@ class IGRRTStar(IterationMixin):
                             log.debug("node %d: best cost %.6g", tree.n, best)
                         improved = True
                         trace.append([time.perf_counter() - t_start, best])
-                if o.branch_and_bound and math.isfinite(best) and (improved or tree.n % o.prune_every == 0):
+                # Pruning between improvements would drop nothing: with best fixed,
+                # costs only fall (rewiring), a node that arrives above the bound
+                # is dropped at once (hopeless) and a revived one is below it.
+                # So the pass runs when best improves (``prune_every`` >= 1
+                # gives the same tree).
+                if improved and o.branch_and_bound:
                     self._prune(tree, best, best_node)
                 history.append(best)
                 if progress is not None:
