@@ -81,3 +81,47 @@ def test_split_screen_is_the_full_screen():
                 # only a segment that grazes a corner can differ from the scan
                 assert abs(np.max(np.minimum(x0[e] @ h.A.T - h.b, x1[e] @ h.A.T - h.b))) < 1e-3
     assert hit.any() and clear.any()
+
+
+def test_distances_are_the_einsum_bit_for_bit():
+    from belief_nlp.planner.iteration import _distances
+    from belief_nlp.planner.tree import BeliefTree
+
+    rng = np.random.default_rng(2)
+    tree = BeliefTree(2, capacity=8)
+    for i in range(300):
+        tree.add(rng.random(2), np.eye(2) * 1e-3, i - 1, float(i), 0.0, 0.0, goal=False)
+    tree.set_live(rng.permutation(300)[:120], False)
+    live = tree.live_arrays()
+    for _ in range(20):
+        x = rng.random(2)
+        diff = x - tree.x[live.idx]
+        assert np.array_equal(_distances(x, live), np.sqrt(np.einsum("ij,ij->i", diff, diff)))
+    assert np.array_equal(live.P, tree.P[live.idx])
+
+
+@pytest.mark.parametrize("name", ["paper-multi", "quad"])
+def test_pruning_between_improvements_would_drop_nothing(name):
+    """The planner prunes only when the best cost improves: after every
+    attempt, no live node other than the root is above the bound of the
+    best cost the attempt started from (costs only fall, hopeless arrivals
+    are dropped at once)."""
+    import math
+
+    from belief_nlp.planner import IGRRTStar
+
+    seen = []
+
+    class Checked(IGRRTStar):
+        def _iterate(self, samples, checker, tree, best):
+            q = super()._iterate(samples, checker, tree, best)
+            if math.isfinite(best):
+                n = tree.n
+                over = tree.live[:n] & (tree.cost[:n] + tree.h[:n] > best * (1 + 1e-12))
+                over[0] = False
+                assert not over.any()
+                seen.append(q)
+            return q
+
+    res = Checked(bn.load_scenario(name), n_nodes=400, seed=1).plan()
+    assert res.success and len(seen) > 100 and res.stats["pruned"] > 0

@@ -28,6 +28,19 @@ _REL_EPS = 1e-12           # relative tie tolerance for cost comparisons
 _EIG_FLOOR_FACTOR = 1e-3   # samples shrunk below 1e-3 * eig_range[0] are rejected
 
 
+def _distances(x: np.ndarray, live: LiveView) -> np.ndarray:
+    """Euclidean distances from x to the live nodes. In 2-D from the
+    coordinate rows (the same values as the einsum over (n, 2), a fifth of
+    its time on the planner's few hundred nodes)."""
+    if live.xc is not None:
+        x0, x1 = x.tolist()
+        d0 = x0 - live.xc[0]
+        d1 = x1 - live.xc[1]
+        return np.sqrt(d0 * d0 + d1 * d1)
+    diff = x - live.x
+    return np.sqrt(np.einsum("ij,ij->i", diff, diff))
+
+
 class IterationMixin:
     """Steps 1-7 of IG-RRT* for :class:`~.rrt.IGRRTStar` (which sets the
     attributes used here: options, metric, W_edge, per_metre, dim, gamma,
@@ -110,8 +123,7 @@ class IterationMixin:
         xs, Ps, lin = samples.next()
 
         # nearest in the (matrix-minimum) edge cost, then steer
-        diff = xs - X
-        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        dist = _distances(xs, live)
         if entries and lin is not None:
             s = self._priors(live, dist if per_metre else None)
             info = metric.nearest_info2(s[0], s[1], s[2], *lin)
@@ -144,8 +156,7 @@ class IterationMixin:
         tm["sample"] += t1 - t0
 
         # parent candidates: live nodes with a lossless edge of cost <= r (cost >= distance)
-        diff = x - X
-        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        dist = _distances(x, live)
         near = (dist <= r).nonzero()[0]
         if near.size == 0:
             st["rejected_no_candidate"] += 1

@@ -12,7 +12,8 @@ __all__ = ["BeliefTree", "LiveView"]
 class LiveView:
     """The live nodes, gathered once per change of the tree.
 
-    ``idx`` their indices, ``x`` their means; ``pe`` (3, n) the entries
+    ``idx`` their indices, ``x`` their means (``xc`` (2, n): the same as
+    contiguous coordinate rows, 2-D only, else None); ``pe`` (3, n) the entries
     (P11, P12, P22) of their covariances (2-D only, else None), contiguous
     per entry for the closed-form kernels; ``P`` (n, d, d) their covariances,
     gathered on first use (the 2-D planner reads entries only). ``extra`` is
@@ -20,10 +21,11 @@ class LiveView:
     lifetime (the planner keeps the prior's entries there).
     """
 
-    __slots__ = ("idx", "x", "pe", "extra", "_P_all")
+    __slots__ = ("idx", "x", "xc", "pe", "extra", "_P_all")
 
     def __init__(self, idx: np.ndarray, x: np.ndarray, P_all: np.ndarray, pe: np.ndarray | None):
         self.idx, self.x, self.pe, self._P_all = idx, x, pe, P_all
+        self.xc = np.ascontiguousarray(x.T) if x.shape[1] == 2 else None
         self.extra: dict = {}
 
     @property
