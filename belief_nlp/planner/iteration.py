@@ -86,6 +86,17 @@ class IterationMixin:
         P = (LU * lam) @ LU.T
         return x, 0.5 * (P + P.T)
 
+    def _noise_stack(self, n: int) -> np.ndarray:
+        """(n, d, d) copies of the per-step noise W (a read-only view of a
+        stack kept between attempts, grown by doubling)."""
+        stack = getattr(self, "_W_stack", None)
+        if stack is None or stack.shape[0] < n:
+            stack = np.empty((max(64, 2 * n),) + self.W_edge.shape)
+            stack[:] = self.W_edge
+            stack.setflags(write=False)
+            self._W_stack = stack
+        return stack[:n]
+
     def _radius(self, n_live: int) -> float:
         n = n_live + 1
         o = self.options
@@ -164,24 +175,25 @@ class IterationMixin:
             return None
         dn = dist[near]
         k = near.size
-        keep = live_idx[near] != 0              # rewiring: the root is never rewired
+        # (rewiring: the root is among the neighbours, but never rewired: its
+        # cost 0 cannot be lowered, so the cost test below drops it)
+        nn = live_idx[near]
         if entries:
             # the edges to q from its neighbours and from q to them (for
             # rewiring, used unless q is hopeless) in one kernel call: rows
             # (s11, s12, s22) of the priors and (t11, t21, t22) of the factors
-            rnodes = live_idx[near[keep]]
-            S = np.empty((6, k + rnodes.size))
+            S = np.empty((6, 2 * k))
             S[:3, :k] = self._priors(live, dn if per_metre else None, near)
             # (scalar fills: cheaper than gathering the entries of 2x2 arrays)
             (t11, _), (t21, t22) = Linv.tolist()
             S[3, :k], S[4, :k], S[5, :k] = t11, t21, t22
             (p11, p12), (_, p22) = P.tolist()
             if per_metre:
-                S[:3, k:] = np.array([[p11], [p12], [p22]]) + self._W_entries * dn[keep]
+                S[:3, k:] = np.array([[p11], [p12], [p22]]) + self._W_entries * dn
             else:
                 w11, w12, w22 = self._W_list
                 S[0, k:], S[1, k:], S[2, k:] = p11 + w11, p12 + w12, p22 + w22
-            S[3:, k:] = tree.le[:, rnodes]
+            S[3:, k:] = tree.le[:, nn]
             lossless_all, info_all = metric.edges2(*S)
             lossless, info = lossless_all[:k], info_all[:k]
         else:
@@ -194,7 +206,7 @@ class IterationMixin:
             tm["candidates"] += time.perf_counter() - t1
             return None
         c_D, c_info = Dn[ok], info[ok]
-        via = tree.cost[live_idx[cand]] + c_D
+        via = tree.cost[nn[ok]] + c_D
         order = via.argsort(kind="stable")
         c_lb = float(via[order[0]])
         h_q = self._h(x, logdet)
@@ -204,9 +216,7 @@ class IterationMixin:
         # rewiring candidates (superset, with the optimistic cost c_lb of q)
         rw = None
         if not hopeless:
-            rv = near[keep]
-            nodes = live_idx[rv]
-            dr = dn[keep]
+            rv, nodes, dr = near, nn, dn
             if entries:
                 lossless_r, info_r = lossless_all[k:], info_all[k:]
             else:
@@ -234,7 +244,7 @@ class IterationMixin:
         P0 = np.empty((nc + nr, d, d))
         x1 = np.empty((nc + nr, d))
         pn = live_idx[cand[order]]
-        x0[:nc] = X[cand[order]]
+        x0[:nc] = tree.x[pn]
         P0[:nc] = tree.P[pn]
         x1[:nc] = x
         if nr:
@@ -244,8 +254,7 @@ class IterationMixin:
         if per_metre:
             We = np.concatenate([dn[ok][order], r_d] if nr else [dn[ok][order]])[:, None, None] * W
         else:
-            We = np.empty_like(P0)
-            We[:] = W
+            We = self._noise_stack(nc + nr)
         clear = checker.transitions_clear(x0, P0, x1, We, ordered=nc)
         hit = clear[:nc].nonzero()[0]
         parent_pos = int(order[hit[0]]) if hit.size else -1

@@ -174,13 +174,16 @@ class IGRRTStar(IterationMixin):
                     stop_reason = f"attempt limit of {max_attempts} reached"
                     break
                 stats["attempts"] += 1
+                rewires = stats["rewires"]
                 q = self._iterate(samples, checker, tree, best)
                 if q is None:
                     continue
-                # best cost: costs of goal nodes may have dropped by rewiring
+                # best cost: a new goal node, or costs of goal nodes dropped by
+                # rewiring (nothing else changes the costs or the live goals)
                 improved = False
-                goals = (tree.goal[: tree.n] & tree.live[: tree.n]).nonzero()[0]
-                if goals.size:
+                goals = ((tree.goal[: tree.n] & tree.live[: tree.n]).nonzero()[0]
+                         if tree.goal[q] or stats["rewires"] != rewires else ())
+                if len(goals):
                     j = int(tree.cost[goals].argmin())
                     if tree.cost[goals[j]] < best:
                         best, best_node = float(tree.cost[goals[j]]), int(goals[j])
