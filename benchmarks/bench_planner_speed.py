@@ -33,6 +33,10 @@ per-run CPU ratios:
 
     git archive b6ff00d belief_nlp | tar -x -C /tmp/old
     PYTHONPATH=$PWD python benchmarks/bench_planner_speed.py --label paired --baseline /tmp/old
+
+With another ``--label`` L the paired records are ``L-before-paired`` and
+``L-after-paired`` and the comparison ``L-paired_comparison``, so that
+several paired runs (against different old versions) stay in one file.
 """
 
 from __future__ import annotations
@@ -164,7 +168,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     libs = {args.label: bn}
     if args.baseline is not None:
-        libs = {"before-paired": baseline_module(args.baseline), "after-paired": bn}
+        pre = "" if args.label == "paired" else f"{args.label}-"
+        libs = {f"{pre}before-paired": baseline_module(args.baseline), f"{pre}after-paired": bn}
     scs = {name: lib.load_scenario("paper-multi") for name, lib in libs.items()}
     for name, lib in libs.items():
         lib.plan(scs[name], n_nodes=200, seed=0)              # warm-up: imports, first-call caches
@@ -193,12 +198,14 @@ def main(argv=None) -> int:
     recs = data["records"]
     if "before" in recs and "after" in recs:
         data["comparison"] = compare(recs["before"], recs["after"])
-    if "before-paired" in recs and "after-paired" in recs:
-        data["paired_comparison"] = compare(recs["before-paired"], recs["after-paired"], paired=True)
+    for name in recs:
+        if name.endswith("before-paired") and name.replace("before-paired", "after-paired") in recs:
+            pre = name[: -len("before-paired")]
+            data[f"{pre}paired_comparison"] = compare(recs[name], recs[f"{pre}after-paired"], paired=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(data, indent=1, allow_nan=False))
-    for key in ("comparison", "paired_comparison"):
-        for row in data.get(key, []):
+    for key in [k for k in data if k.endswith("comparison")]:
+        for row in data[key]:
             print(key, json.dumps(row))
     print(f"wrote {args.out}")
     return 0

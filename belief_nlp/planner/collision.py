@@ -77,6 +77,12 @@ def _boundary_dist2(x, P, V, E) -> np.ndarray:
     vectors E (R, k, 2) (zero edges pad). For x outside the polygon it is
     the distance to the polygon. Whitening is linear, so the whitened
     polygon's edges are the whitened edge vectors."""
+    return _boundary_parts(x, P, V, E)[0]
+
+
+def _boundary_parts(x, P, V, E):
+    """:func:`_boundary_dist2`, and the factor entries and whitened vertices
+    (relative to x) it computed on the way."""
     L = _chol2(P)
     w0, w1 = _whiten(V - x[:, None, :], *L)
     e0, e1 = _whiten(E, *L)
@@ -84,7 +90,7 @@ def _boundary_dist2(x, P, V, E) -> np.ndarray:
     t = np.minimum(np.maximum(-(w0 * e0 + w1 * e1) / ee, 0.0), 1.0)
     q0 = w0 + t * e0
     q1 = w1 + t * e1
-    return _min(q0 * q0 + q1 * q1, axis=1)
+    return _min(q0 * q0 + q1 * q1, axis=1), L, w0, w1
 
 
 def _sweep_dist2(xa, xb, Pb, xm, Pm, V, E) -> tuple[np.ndarray, np.ndarray]:
@@ -93,12 +99,13 @@ def _sweep_dist2(xa, xb, Pb, xm, Pm, V, E) -> tuple[np.ndarray, np.ndarray]:
     :func:`_boundary_dist2`) to the segment [xa, xb], which must not meet
     it, and under Pm to the point xm. The segment's is attained at one of
     its ends or at a vertex of the polygon (disjoint convex sets in the
-    plane); the three point distances take one call."""
+    plane); the three point distances take one call, whose first rows (xa
+    under Pb) also give the factor and whitened polygon of the segment's."""
     R = xa.shape[0]
-    d = _boundary_dist2(np.concatenate([xa, xb, xm]), np.concatenate([Pb, Pb, Pm]),
-                        np.concatenate([V, V, V]), np.concatenate([E, E, E]))
-    L = _chol2(Pb)
-    w0, w1 = _whiten(V - xa[:, None, :], *L)                         # polygon, origin at xa
+    d, L3, v0, v1 = _boundary_parts(np.concatenate([xa, xb, xm]), np.concatenate([Pb, Pb, Pm]),
+                                    np.concatenate([V, V, V]), np.concatenate([E, E, E]))
+    L = tuple(c[:R] for c in L3)
+    w0, w1 = v0[:R], v1[:R]                                          # polygon, origin at xa
     u0, u1 = _whiten((xb - xa)[:, None, :], *L)                      # segment is {t u, t in [0, 1]}
     t = np.minimum(np.maximum((w0 * u0 + w1 * u1) / (u0 * u0 + u1 * u1 + 1e-300), 0.0), 1.0)
     r0, r1 = w0 - t * u0, w1 - t * u1
@@ -205,6 +212,8 @@ class CollisionChecker:
         screen), and every end of a sub-interval was the middle or an end of
         an earlier one, so its ellipse was tested already.
         """
+        if self.dim == 2:
+            return self._refine2(x0, x1, P0, W_e, e, j)
         n = x0.shape[0]
         dx = x1 - x0
         sa = np.zeros(e.size)
@@ -214,31 +223,18 @@ class CollisionChecker:
         Pb = P0[e] + W_e[e]
         blocked = np.zeros(n, dtype=bool)
         for depth in range(_DEPTH + 1):
-            if self.dim == 2:
-                # every row at once (fewer calls than compressing first): the
-                # sweep certificate (it implies the face certificates: a
-                # capsule beyond a face misses the polygon), then the middle
-                # witness where it fails
-                r = np.arange(e.size)
-                sm = 0.5 * (sa + sb)
-                xm = x0[e] + sm[:, None] * dx[e]
-                Pm = P0[e] + sm[:, None, None] * W_e[e]
-                seg, mid = _sweep_dist2(xa, xb, Pb, xm, Pm, self.V[j], self.E[j])
-                clear = seg >= self.thr
-                hit = (mid < self.thr_witness) & ~clear
-            else:
-                clear = self._face_certificates(j, xa, xb, Pb) if depth else np.zeros(e.size, dtype=bool)
-                hit = np.zeros(e.size, dtype=bool)
-                r = (~clear).nonzero()[0]
-                if r.size and depth == 0:
-                    hit[r] = self._ellipse_hits(xb[r], Pb[r], j[r])
-                    r = r[~hit[r]]
-                if r.size:
-                    sm = 0.5 * (sa[r] + sb[r])
-                    er = e[r]
-                    xm = x0[er] + sm[:, None] * dx[er]
-                    Pm = P0[er] + sm[:, None, None] * W_e[er]
-                    hit[r] = self._ellipse_hits(xm, Pm, j[r])
+            clear = self._face_certificates(j, xa, xb, Pb) if depth else np.zeros(e.size, dtype=bool)
+            hit = np.zeros(e.size, dtype=bool)
+            r = (~clear).nonzero()[0]
+            if r.size and depth == 0:
+                hit[r] = self._ellipse_hits(xb[r], Pb[r], j[r])
+                r = r[~hit[r]]
+            if r.size:
+                sm = 0.5 * (sa[r] + sb[r])
+                er = e[r]
+                xm = x0[er] + sm[:, None] * dx[er]
+                Pm = P0[er] + sm[:, None, None] * W_e[er]
+                hit[r] = self._ellipse_hits(xm, Pm, j[r])
             blocked[e[hit]] = True
             if depth == _DEPTH or not r.size:
                 e = e[r[~hit[r] & ~clear[r]]]
@@ -252,6 +248,48 @@ class CollisionChecker:
             Pb = np.concatenate([Pm, Pb[r]])
             if not e.size:
                 break
+        return self._exact_rest(x0, x1, P0, W_e, e, blocked)
+
+    def _refine2(self, x0, x1, P0, W_e, e, j) -> np.ndarray:
+        """:meth:`_refine` in 2-D: every row at once (fewer calls than
+        compressing first): the sweep certificate (it implies the face
+        certificates: a capsule beyond a face misses the polygon), then the
+        middle witness where it fails. The data of each pair (its edge's
+        start, step, covariance, noise, and its polygon) is gathered once and
+        carried along the splits."""
+        blocked = np.zeros(x0.shape[0], dtype=bool)
+        xs = x0[e]
+        dx = x1[e] - xs
+        Ps, We, V, E = P0[e], W_e[e], self.V[j], self.E[j]
+        sa = np.zeros(e.size)
+        sb = np.ones(e.size)
+        xa, xb, Pb = xs, xs + dx, Ps + We
+        for depth in range(_DEPTH + 1):
+            sm = 0.5 * (sa + sb)
+            xm = xs + sm[:, None] * dx
+            Pm = Ps + sm[:, None, None] * We
+            seg, mid = _sweep_dist2(xa, xb, Pb, xm, Pm, V, E)
+            clear = seg >= self.thr
+            hit = (mid < self.thr_witness) & ~clear
+            blocked[e[hit]] = True
+            if depth == _DEPTH:
+                e = e[~hit & ~clear]
+                break
+            r = (~(hit | clear | blocked[e])).nonzero()[0]
+            if not r.size:
+                e = e[r]
+                break
+            rr = np.concatenate([r, r])
+            e, xs, dx, Ps, We, V, E = e[rr], xs[rr], dx[rr], Ps[rr], We[rr], V[rr], E[rr]
+            sa, sb = np.concatenate([sa[r], sm[r]]), np.concatenate([sm[r], sb[r]])
+            xa, xb = np.concatenate([xa[r], xm[r]]), np.concatenate([xm[r], xb[r]])
+            Pb = np.concatenate([Pm[r], Pb[r]])
+        return self._exact_rest(x0, x1, P0, W_e, e, blocked)
+
+    def _exact_rest(self, x0, x1, P0, W_e, e, blocked) -> np.ndarray:
+        """The exact check of the edges ``e`` that the refinement left open
+        (and did not block); updates and returns ``blocked``."""
+        n = x0.shape[0]
         undecided = np.zeros(n, dtype=bool)
         undecided[e] = True
         undecided &= ~blocked
@@ -284,20 +322,26 @@ class CollisionChecker:
         if self.screen is None:
             return np.ones(n, dtype=bool)
         P1 = P0 + W_e
-        hit, clear = self.screen.certify(x0, x1, P1)
-        blocked = _any(hit, axis=1)
-        pending = ~clear                                # open (edge, hazard) pairs of edges not blocked
-        pending[blocked] = False
+        clear, seg = self.screen.clearances(x0, x1, P1)
+        pending = ~clear                                # open (edge, hazard) pairs
         open_ = _any(pending, axis=1)
         skip = ordered
         if ordered:
-            done = ~blocked[:ordered] & ~open_[:ordered]
-            first = int(done.argmax())
-            if done[first]:
+            # the first parent candidate certified against every hazard ends
+            # the search (a certified pair's segment meets no hazard)
+            first = int(open_[:ordered].argmin())
+            if not open_[first]:
                 skip = first + 1
                 open_[skip:ordered] = False
                 st["edges_skipped"] += ordered - skip
         rows = open_.nonzero()[0]
+        blocked = np.zeros(n, dtype=bool)
+        if rows.size:
+            # witnesses: the mean segment meets a hazard of an open pair
+            hit = _any(self.screen.segment_hits(seg, rows) & pending[rows], axis=1)
+            if _any(hit):
+                blocked[rows[hit]] = True
+                rows = rows[~hit]
         st["edges_screened"] += n - rows.size
         if rows.size:
             self._decide_open(x0, x1, P0, W_e, P1, rows, pending, blocked)

@@ -53,9 +53,10 @@ def _eig2_pair(m11, m12, m22):
     avoids the cancellation of (tr - disc)/2 for ill-conditioned matrices.
     """
     half_tr = 0.5 * (m11 + m22)
-    disc = np.sqrt((0.5 * (m11 - m22)) ** 2 + m12 * m12)
+    m12sq = m12 * m12
+    disc = np.sqrt((0.5 * (m11 - m22)) ** 2 + m12sq)
     big = half_tr + disc
-    det = m11 * m22 - m12 * m12
+    det = m11 * m22 - m12sq
     if _all(big > 0):         # always for positive definite input: no masked select needed
         return det / big, big
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -51,8 +51,11 @@ class PlannerOptions:
     time_limit : wall-clock limit in seconds, or None.
     branch_and_bound : prune nodes that cannot lead to a path cheaper than the
         best one found (cost-to-come + admissible cost-to-go bound > best).
-    prune_every : run the pruning every this many nodes (authors: 10). It is
-        a vectorised O(n) pass, so the default prunes every node.
+    prune_every : run the pruning every this many nodes (authors: 10).
+        Accepted for the authors' settings; every value gives the same tree,
+        since between two improvements of the best cost a pruning pass finds
+        nothing to drop (see :meth:`IGRRTStar.plan`), so the planner prunes
+        when the best cost improves.
     eig_range : (low, high) range of the eigenvalues of sampled covariances,
         m^2 (authors: 1e-9 .. 1e-1).
     eig_ratio : largest ratio between the eigenvalues of one sample (authors:

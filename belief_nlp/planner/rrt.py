@@ -113,6 +113,7 @@ class IGRRTStar(IterationMixin):
         self._entries = self.dim == 2 and self.metric.entries_ok
         We = self.W_edge
         self._W_entries = np.array([[We[0, 0]], [We[0, 1]], [We[1, 1]]]) if self.dim == 2 else None
+        self._W_list = self._W_entries.ravel().tolist() if self.dim == 2 else None
         self.gamma = o.gamma if o.gamma is not None else default_gamma(self.dim, _polytope_volume(sc.domain))
         # Cost-to-go bound for branch-and-bound, h(x, P) = dist_lb(x) + weight * info_lb(P):
         # dist_lb = largest violated target face (a lower bound of the Euclidean
@@ -135,7 +136,7 @@ class IGRRTStar(IterationMixin):
         t_start = time.perf_counter()
         cpu_start = time.process_time()
         rng = np.random.default_rng(o.seed)
-        sampler = BeliefSampler(sc, o.eig_range, o.eig_ratio, o.goal_bias)
+        samples = BeliefSampler(sc, o.eig_range, o.eig_ratio, o.goal_bias).stream(rng)
         checker = CollisionChecker(sc, o.safety_margin, o.collision_chi2)
         tree = BeliefTree(self.dim, capacity=min(o.n_nodes, 4096))
         self.tree_ = tree
@@ -173,13 +174,16 @@ class IGRRTStar(IterationMixin):
                     stop_reason = f"attempt limit of {max_attempts} reached"
                     break
                 stats["attempts"] += 1
-                q = self._iterate(rng, sampler, checker, tree, best)
+                rewires = stats["rewires"]
+                q = self._iterate(samples, checker, tree, best)
                 if q is None:
                     continue
-                # best cost: costs of goal nodes may have dropped by rewiring
+                # best cost: a new goal node, or costs of goal nodes dropped by
+                # rewiring (nothing else changes the costs or the live goals)
                 improved = False
-                goals = (tree.goal[: tree.n] & tree.live[: tree.n]).nonzero()[0]
-                if goals.size:
+                goals = ((tree.goal[: tree.n] & tree.live[: tree.n]).nonzero()[0]
+                         if tree.goal[q] or stats["rewires"] != rewires else ())
+                if len(goals):
                     j = int(tree.cost[goals].argmin())
                     if tree.cost[goals[j]] < best:
                         best, best_node = float(tree.cost[goals[j]]), int(goals[j])
@@ -190,7 +194,12 @@ class IGRRTStar(IterationMixin):
                             log.debug("node %d: best cost %.6g", tree.n, best)
                         improved = True
                         trace.append([time.perf_counter() - t_start, best])
-                if o.branch_and_bound and math.isfinite(best) and (improved or tree.n % o.prune_every == 0):
+                # Pruning between improvements would drop nothing: with best fixed,
+                # costs only fall (rewiring), a node that arrives above the bound
+                # is dropped at once (hopeless) and a revived one is below it.
+                # So the pass runs when best improves (``prune_every`` >= 1
+                # gives the same tree).
+                if improved and o.branch_and_bound:
                     self._prune(tree, best, best_node)
                 history.append(best)
                 if progress is not None:

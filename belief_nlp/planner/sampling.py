@@ -6,7 +6,9 @@ import math
 
 import numpy as np
 
-__all__ = ["BeliefSampler"]
+__all__ = ["BeliefSampler", "SampleStream"]
+
+_BLOCK = 256    # samples drawn per block by :class:`SampleStream`
 
 
 class BeliefSampler:
@@ -69,6 +71,12 @@ class BeliefSampler:
         P = (R * lam) @ R.T
         return x, 0.5 * (P + P.T)
 
+    def stream(self, rng: np.random.Generator) -> "SampleStream":
+        """The samples :meth:`draw` gives on ``rng``, in the same order and bit
+        for bit, drawn in blocks (see :class:`SampleStream`). The stream
+        draws ahead: use ``rng`` for nothing else while it is in use."""
+        return SampleStream(self, rng)
+
     def _rotation(self, rng: np.random.Generator) -> np.ndarray:
         d = self.dim
         if d == 2:
@@ -78,3 +86,86 @@ class BeliefSampler:
         # Haar-random orthogonal matrix: QR of a Gaussian matrix with the sign fix.
         Q, Rm = np.linalg.qr(rng.standard_normal((d, d)))
         return Q * np.sign(np.diag(Rm))
+
+
+class SampleStream:
+    """The samples of :meth:`BeliefSampler.draw` on one Generator, in blocks.
+
+    A planner attempt is a few hundred microseconds, and a scalar draw (six
+    Generator calls and a few small arrays) was a tenth of it. In 2-D every
+    random number of a draw is one ``rng.random()`` double (``uniform(-1, 1)``
+    is ``-1 + 2 u`` of the same double, a rotation angle ``pi u``), so a
+    block of doubles from one ``rng.random(k)`` call, consumed in the scalar
+    order, gives the same numbers; the covariances of a block are then one
+    stacked product (numpy multiplies a stack matrix by matrix, the same
+    products as one at a time). Other dimensions draw one sample per call.
+    """
+
+    def __init__(self, sampler: BeliefSampler, rng: np.random.Generator):
+        self.sampler, self.rng = sampler, rng
+        self._u: list[float] = []
+        self._k = 0
+        self._x = self._P = None
+        self._i = self._n = 0
+
+    def _uniform(self) -> float:
+        if self._k == len(self._u):
+            self._u = self.rng.random(8 * _BLOCK).tolist()
+            self._k = 0
+        u = self._u[self._k]
+        self._k += 1
+        return u
+
+    def _refill(self) -> None:
+        sp = self.sampler
+        nxt = self._uniform
+        xs = np.empty((_BLOCK, 2))
+        lam = np.empty((_BLOCK, 1, 2))
+        R = np.empty((_BLOCK, 2, 2))
+        rows = []
+        for i in range(_BLOCK):
+            goal = sp.goal_bias > 0 and nxt() < sp.goal_bias
+            poly, lo, hi, is_box = sp._boxes["target" if goal else "domain"]
+            lo0, lo1 = lo.tolist()
+            w0, w1 = (hi - lo).tolist()
+            for _ in range(10000):
+                x = [lo0 + w0 * nxt(), lo1 + w1 * nxt()]
+                if is_box or np.all(poly.A @ np.array(x) <= poly.b):
+                    break
+            else:  # pragma: no cover
+                raise RuntimeError("could not sample inside a polytope (degenerate?)")
+            lam0 = math.exp(sp.log_lo + (sp.log_hi - sp.log_lo) * nxt())
+            u = -1.0 + 2.0 * nxt()
+            t = math.pi * nxt()
+            c, s = math.cos(t), math.sin(t)
+            rows.append((x, lam0, min(max(lam0 * math.exp(sp.log_ratio * u), sp.lo), sp.hi), c, s))
+        xs[:] = [r[0] for r in rows]
+        lam[:, 0, :] = [(r[1], r[2]) for r in rows]
+        R[:] = [[[r[3], -r[4]], [r[4], r[3]]] for r in rows]
+        P = (R * lam) @ np.swapaxes(R, 1, 2)
+        self._x, self._P = xs, 0.5 * (P + np.swapaxes(P, 1, 2))
+        # (L^-1_11, L^-1_21, L^-1_22) of each P, the operations of
+        # :func:`.kernels.chol_factors` elementwise (the same values)
+        a, b, c = self._P[:, 0, 0], 0.5 * (self._P[:, 0, 1] + self._P[:, 1, 0]), self._P[:, 1, 1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            l11 = np.sqrt(a)
+            l21 = b / l11
+            r = c - l21 * l21
+            l22 = np.sqrt(r)
+            lin = np.stack([1.0 / l11, -l21 / (l11 * l22), 1.0 / l22], axis=1).tolist()
+        ok = ((a > 0) & (r > 0)).tolist()
+        self._lin = [v if k else None for v, k in zip(lin, ok)]
+        self._i, self._n = 0, _BLOCK
+
+    def next(self) -> tuple[np.ndarray, np.ndarray, tuple[float, float, float] | None]:
+        """The next sample (x, P), as :meth:`BeliefSampler.draw` would give it,
+        and in 2-D the entries (L^-1_11, L^-1_21, L^-1_22) of its Cholesky
+        factor's inverse as :func:`.kernels.chol_factors` computes them (None
+        in other dimensions, or when P is not positive definite)."""
+        if self.sampler.dim != 2:
+            return (*self.sampler.draw(self.rng), None)
+        if self._i == self._n:
+            self._refill()
+        i = self._i
+        self._i += 1
+        return self._x[i], self._P[i], self._lin[i]

@@ -81,7 +81,17 @@ class HazardScreen:
         """(hit, clear), each (n, H): mean segments that meet a hazard, and the
         face certificates. ``x0``, ``x1`` (n, d) are the ends of the mean
         segments, ``P1`` (n, d, d) the covariance at s = 1 (the largest of the
-        sweep)."""
+        sweep). (:meth:`clearances`, then :meth:`segment_hits` of every edge.)"""
+        clear, seg = self.clearances(x0, x1, P1)
+        hit = self.segment_hits(seg, np.arange(x0.shape[0]))
+        return hit, clear & ~hit
+
+    def clearances(self, x0: np.ndarray, x1: np.ndarray, P1: np.ndarray) -> tuple[np.ndarray, tuple]:
+        """The face certificates, (n, H), and the segments' face values for
+        :meth:`segment_hits` (arguments as :meth:`certify`). A certified pair's
+        segment misses the hazard (both ends are beyond one face), so only the
+        edges that the certificates leave open need the witness, and the
+        planner's parent search needs it only up to its first certified edge."""
         n, d, G = x0.shape[0], self.dim, self.G
         shape = (self.Fm, self.H, n)
         data = np.concatenate([np.ones((n, 1)), x0, x1, P1.reshape(n, d * d)], axis=1)
@@ -89,6 +99,12 @@ class HazardScreen:
         c0, c1, q = (R[k * G:(k + 1) * G].reshape(shape) for k in range(3))
         slack = np.minimum(c0, c1)
         clear = _any((slack > 0) & (slack * slack >= q), axis=0)
+        return clear.T, (c0, c1)
+
+    def segment_hits(self, seg: tuple, rows: np.ndarray) -> np.ndarray:
+        """(len(rows), H): the mean segments of the edges ``rows`` that meet a
+        hazard (``seg`` from :meth:`clearances`)."""
+        c0, c1 = (c[:, :, rows] for c in seg)
         # Liang-Barsky: the segment x0 + t (x1 - x0) is inside face f iff
         # t (c0 - c1) >= c0, so it meets the hazard iff max over the faces
         # with c0 > c1 of c0 / (c0 - c1) is at most the min over the others
@@ -100,8 +116,7 @@ class HazardScreen:
             ratio = np.where(den != 0, c0 / den, np.where(c0 > 0, -np.inf, np.inf))
         lower = _max(np.where(den > 0, ratio, -np.inf), axis=0)
         upper = _min(np.where(den > 0, np.inf, ratio), axis=0)
-        hit = np.maximum(lower, 0.0) <= np.minimum(upper, 1.0)
-        return hit.T, (clear & ~hit).T
+        return (np.maximum(lower, 0.0) <= np.minimum(upper, 1.0)).T
 
     def ellipse(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For one ellipse E(x, P): (inside (H,): the mean is in the hazard or on

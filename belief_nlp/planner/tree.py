@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 
 from .kernels import chol_lower, inv_lower
@@ -11,20 +9,31 @@ from .kernels import chol_lower, inv_lower
 __all__ = ["BeliefTree", "LiveView"]
 
 
-class LiveView(NamedTuple):
+class LiveView:
     """The live nodes, gathered once per change of the tree.
 
-    ``pe`` (3, n) holds the entries (P11, P12, P22) of their covariances
-    (2-D only, else None), contiguous per entry for the closed-form kernels.
-    ``extra`` is a scratch dict for quantities derived from them, which share
-    their lifetime (the planner keeps the prior's entries there).
+    ``idx`` their indices, ``x`` their means (``xc`` (2, n): the same as
+    contiguous coordinate rows, 2-D only, else None); ``pe`` (3, n) the entries
+    (P11, P12, P22) of their covariances (2-D only, else None), contiguous
+    per entry for the closed-form kernels; ``P`` (n, d, d) their covariances,
+    gathered on first use (the 2-D planner reads entries only). ``extra`` is
+    a scratch dict for quantities derived from them, which share their
+    lifetime (the planner keeps the prior's entries there).
     """
 
-    idx: np.ndarray
-    x: np.ndarray
-    P: np.ndarray
-    pe: np.ndarray | None
-    extra: dict
+    __slots__ = ("idx", "x", "xc", "pe", "extra", "_P_all")
+
+    def __init__(self, idx: np.ndarray, x: np.ndarray, P_all: np.ndarray, pe: np.ndarray | None):
+        self.idx, self.x, self.pe, self._P_all = idx, x, pe, P_all
+        self.xc = np.ascontiguousarray(x.T) if x.shape[1] == 2 else None
+        self.extra: dict = {}
+
+    @property
+    def P(self) -> np.ndarray:
+        P = self.extra.get("P")
+        if P is None:
+            P = self.extra["P"] = self._P_all[self.idx]
+        return P
 
 
 class BeliefTree:
@@ -69,8 +78,7 @@ class BeliefTree:
         (rejected samples leave it unchanged, so the gather is reused)."""
         if self._live_cache is None:
             idx = self.live[: self.n].nonzero()[0]
-            self._live_cache = LiveView(idx, self.x[idx], self.P[idx],
-                                        None if self.pe is None else self.pe[:, idx], {})
+            self._live_cache = LiveView(idx, self.x[idx], self.P, None if self.pe is None else self.pe[:, idx])
         return self._live_cache
 
     def set_live(self, idx, value: bool) -> None:
