@@ -19,10 +19,9 @@ class Recorder(ca.Callback):
     One recorder serves every attempt (restart) of a solve; ``begin`` resets
     the per-attempt counter and sets the parameter values."""
 
-    def __init__(self, nlp: NLPProblem, alpha: float, keep: int, bar, stall: int = 0):
+    def __init__(self, nlp: NLPProblem, keep: int, bar, stall: int = 0):
         ca.Callback.__init__(self)
         self.nlp = nlp
-        self.alpha = alpha
         self.nx = int(nlp.z.shape[0])
         self.ng = int(nlp.g.shape[0])
         self.keep = keep
