@@ -161,11 +161,11 @@ class SmoothingProblem:
         self.keep_iterates = keep_iterates
         self.callback = callback
         self.method = method
-        self.hazards = PolytopeSet.build(scenario.hazards)
+        self.hazards = PolytopeSet.cached(scenario.hazards)
         # the same hazards in the model's scaled units: the exact check runs there
         # (squared Mahalanobis distances are unit-free), no SI round trip per iterate
         s = model.data.sigma
-        self.hazards_scaled = PolytopeSet.build([(h.A, h.b / s) for h in scenario.hazards])
+        self.hazards_scaled = PolytopeSet.cached([(h.A, h.b / s) for h in scenario.hazards])
         self.policy = policy
         chk = self.check(model.tighten(model.from_path(warm.path, warm.lam)))
         self.start = chk.point

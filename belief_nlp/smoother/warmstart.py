@@ -114,7 +114,7 @@ def allocate_steps(scenario: Scenario, x: np.ndarray, K: int, hazards: PolytopeS
     P0). Extra steps go, one at a time, to the edge with the longest sub-step
     among those whose finer split stays possible (open space gets the steps,
     tight passages keep long steps)."""
-    hazards = hazards or PolytopeSet.build(scenario.hazards)
+    hazards = hazards or PolytopeSet.cached(scenario.hazards)
     x = np.asarray(x, float)
     E = x.shape[0] - 1
     W = scenario.W
@@ -269,7 +269,7 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
     target_P = _target_posteriors(path, x)
     chi2 = scenario.chi2                                     # the target's level
     chi2_c = chi2 if chi2_collision is None else float(chi2_collision)
-    hazards = PolytopeSet.build(scenario.hazards)
+    hazards = PolytopeSet.cached(scenario.hazards)
     thr = chi2_c * (1 + _START_MARGIN)
     W = scenario.W
     P = np.empty((K_ + 1, scenario.dim, scenario.dim))
@@ -361,7 +361,7 @@ def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | No
     chi2 * margin). Strictly interior certificates keep the interior-point
     solver away from the boundary of every cone at once.
     """
-    hazards = hazards or PolytopeSet.build(scenario.hazards)
+    hazards = hazards or PolytopeSet.cached(scenario.hazards)
     chi2 = scenario.chi2 if chi2 is None else chi2
     return segment_certificates(path.x[:-1], path.P[:-1], path.x[1:], path.transition_noise, hazards, chi2, margin)
 
