@@ -105,10 +105,10 @@ def test_an_infeasible_horizon_falls_back_to_one_step_per_edge_and_says_so(monke
     sc, path = paper_multi_path_pair(steps_per_segment=1)        # 5 edges
     real = driver.warm_start
 
-    def refuse_k(scenario, p, K=None, sensing="minimal"):
+    def refuse_k(scenario, p, K=None, sensing="minimal", **kw):
         if K is not None and K != p.K:
             raise bn.InfeasibleStartError("no feasible allocation (simulated)", transition=1, obstacle="x")
-        return real(scenario, p, K=K, sensing=sensing)
+        return real(scenario, p, K=K, sensing=sensing, **kw)
 
     monkeypatch.setattr(driver, "warm_start", refuse_k)
     res = bn.smooth(sc, path, K=20, max_iter=3)
@@ -203,3 +203,21 @@ def test_method_options_as_a_dict_like_scipy():
     a = bn.smooth(sc, path, method="ccp", max_iter=2, options={"monotone_tol": 1e-6})
     b = bn.smooth(sc, path, method="ccp", max_iter=2, monotone_tol=1e-6)
     assert a.cost == b.cost
+
+
+def test_unverified_warm_start_is_the_verified_one_and_smooth_verifies_its_answer():
+    """warm_start(verify_start=False) (what smooth builds) is the same start
+    without the report; smooth still verifies the path it returns, here the
+    warm start itself (max_iter=1 keeps no better iterate)."""
+    from conftest import paper_multi_path_pair
+
+    sc, path = paper_multi_path_pair(steps_per_segment=2)
+    full = bn.warm_start(sc, path)
+    lazy = bn.warm_start(sc, path, verify_start=False)
+    assert full.report.safe and lazy.report is None
+    np.testing.assert_array_equal(lazy.path.x, full.path.x)
+    np.testing.assert_array_equal(lazy.path.P, full.path.P)
+    np.testing.assert_array_equal(lazy.lam, full.lam)
+    res = bn.smooth(sc, path, method="ccp", max_iter=1, time_limit=1e-9)
+    assert res.cost == pytest.approx(res.initial_cost) and res.safe
+    assert res.verification["safe"] and bn.verify(sc, res.path).safe

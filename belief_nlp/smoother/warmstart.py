@@ -72,8 +72,9 @@ class WarmStart:
     lam : ndarray, shape (K, J, F)
         Certificates of Theorem 1 in SI units (padded faces zero), hazards
         ordered as ``scenario.hazards``.
-    report : VerificationReport
-        Independent verification of ``path``.
+    report : VerificationReport or None
+        Independent verification of ``path`` (None when built with
+        ``verify_start=False``).
     added_sensing : int, optional
         Number of covariance halvings applied to make transitions clear.
     allocation : {"length", "feasibility"}, optional
@@ -83,7 +84,7 @@ class WarmStart:
 
     path: BeliefPath
     lam: np.ndarray
-    report: VerificationReport
+    report: VerificationReport | None
     added_sensing: int = 0
     allocation: str = "length"      # how steps were allotted to edges: "length" or "feasibility"
 
@@ -194,7 +195,7 @@ def _on_segment(p, a, b) -> bool:
 
 
 def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
-               sensing: str = "minimal", chi2: float | None = None) -> WarmStart:
+               sensing: str = "minimal", chi2: float | None = None, *, verify_start: bool = True) -> WarmStart:
     """A feasible initial point of the smoother built from ``path``.
 
     The means are mapped onto K steps (the polyline is kept), the
@@ -226,6 +227,11 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
         scenario's); the target keeps the scenario's own level. A risk
         budget's warm start uses its uniform level here
         (:meth:`belief_nlp.allocation.RiskBudget.warm_level`).
+    verify_start : bool, optional
+        Verify the warm start independently (default). False leaves
+        ``report`` None: :func:`belief_nlp.smooth` does so, because its
+        exact check proves the start safe and it verifies the path it
+        returns, the warm start included (one verification less per call).
 
     Returns
     -------
@@ -241,20 +247,20 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
         For bad arguments (a K below the number of edges, an unknown ``sensing``).
     """
     try:
-        return _warm_start(scenario, path, K, sensing, None, chi2)
+        return _warm_start(scenario, path, K, sensing, None, chi2, verify_start)
     except InfeasibleStartError:
         if K is None or not isinstance(path, BeliefPath) or K <= path.K:
             raise
         steps = allocate_steps(scenario, path.x, K, chi2=chi2)
         if steps is None:
             raise
-        ws = _warm_start(scenario, path, K, sensing, steps, chi2)
+        ws = _warm_start(scenario, path, K, sensing, steps, chi2, verify_start)
         ws.allocation = "feasibility"
         return ws
 
 
 def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str,
-                steps: np.ndarray | None, chi2_collision: float | None = None) -> WarmStart:
+                steps: np.ndarray | None, chi2_collision: float | None = None, check: bool = True) -> WarmStart:
     """:func:`warm_start` with the means cut by ``steps`` per edge (None: by length)."""
     if not isinstance(path, BeliefPath):
         raise ValidationError("path", f"must be a BeliefPath, got {type(path).__name__}")
@@ -315,8 +321,8 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
     ws_path = BeliefPath.from_sensing(x, scenario.P0, S, W=W, noise="per_step",
                                       meta={**path.meta, "warm_start_from": path.meta.get("source", "path")})
     lam = certificates(scenario, ws_path, hazards, chi2=chi2_c)
-    report = verify(scenario, ws_path, levels=chi2_c)
-    if not report.safe:
+    report = verify(scenario, ws_path, levels=chi2_c) if check else None
+    if report is not None and not report.safe:
         raise InfeasibleStartError(f"warm start failed verification: {report.summary()}")
     return WarmStart(ws_path, lam, report, halvings)
 
