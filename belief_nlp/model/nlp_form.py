@@ -246,10 +246,13 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
     # continuous-time surrogate: both ends under Sigma_k = Q_{k-1}^-1 + W (Sigma_1 = P0 + W),
     # information T_k (risk.continuous_surrogate)
     T = [None, ca.DM(D.Q1)] + [_sym_inv(ca.inv(Q[k - 1]) + W) for k in range(2, K + 1)] if D.continuous else None
+    AB = [(ca.DM(D.A[j]), ca.DM(D.b[j])) for j in range(J)]       # once per hazard, not per (k, j)
+    pads = [ca.SX.zeros(F - nf[j]) for j in range(J)]
     for k in range(1, K + 1):
+        lam_k = ca.vertsplit(Lam[:, k - 1], [int(o) for o in offs])
         for j in range(J):
-            lam = ca.vertcat(Lam[offs[j]:offs[j + 1], k - 1], ca.SX.zeros(F - nf[j]))
-            A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
+            lam = ca.vertcat(lam_k[j], pads[j])
+            A, b = AB[j]
             # the model's margins are at level chi2; a variable level moves them by chi2 - tau (1 + margin)
             shift = D.chi2 - (1 + margin) * Tau[j, k - 1] if budget else 0
             if T is not None:
