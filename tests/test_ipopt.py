@@ -283,6 +283,30 @@ def test_polish_on_shared_derivatives_equals_a_fresh_cholesky_solver(small_start
     np.testing.assert_allclose(col, np.stack([start, end], axis=-1).ravel(), rtol=1e-8, atol=1e-8)
 
 
+def test_history_cost_parts_are_the_nlp_parts_of_the_iterates(small_start):
+    """The recorder's control and information (evaluated in the iteration
+    callback) are the NLP's cost parts of the iterates it stored, and the
+    history's costs are control + alpha information."""
+    from belief_nlp.methods import nlp_engine
+    from belief_nlp.methods.ipopt import clear_cache
+
+    sc, ws = small_start
+    clear_cache()
+    res = bn.smooth(sc, ws, method="ipopt", max_iter=3000, alpha=0.7)
+    checked = 0
+    for nlp, _, rec in nlp_engine._CACHE._d.values():
+        if len(rec.pvs) != 1 or not rec.rows:
+            continue
+        for row, zv in zip(rec.rows, rec.zs):
+            ctrl, info, _ = (float(v) for v in nlp.parts(zv, rec.pvs[0]))
+            assert row[5] == pytest.approx(ctrl, rel=1e-12, abs=1e-15)
+            assert row[6] == pytest.approx(info, rel=1e-12, abs=1e-15)
+            checked += 1
+    assert checked >= res.nit // 2
+    for h in res.history[1:]:
+        assert h.cost == pytest.approx(h.control + 0.7 * h.information, rel=1e-12)
+
+
 def test_status_mapping():
     assert map_status("Solve_Succeeded") == "converged"
     assert map_status("Solved_To_Acceptable_Level") == "converged"

@@ -251,17 +251,15 @@ def _safe_points(problem: SmoothingProblem, nlp: NLPProblem, recorder: Recorder,
 
 def _record_attempt(problem: SmoothingProblem, nlp: NLPProblem, recorder: Recorder, start: int,
                     found: list, raw_status: str) -> None:
-    """History records of one attempt's iterations (cost parts in one batch)."""
-    rows, zs = recorder.rows[start:], recorder.zs[start:]
+    """History records of one attempt's iterations (cost parts from the recorder)."""
+    rows = recorder.rows[start:]
     if not rows:
         return
     D = problem.model.data
-    Z = np.stack(zs, axis=1)
-    ctrls, infos, _ = (np.asarray(v).ravel() for v in nlp.parts.map(Z.shape[1])(Z, recorder.pvs[-1]))
     safe = {it: z for _, z, _, it in found if it is not None}
     last = rows[-1][0]
     final = next((z for _, z, _, it in found if it is None), None)
-    for (it, mmin, viol, dt, kgap), ctrl, info in zip(rows, ctrls, infos):
+    for it, mmin, viol, dt, kgap, ctrl, info in rows:
         rec = IterationRecord(it, float(ctrl + D.alpha * info), float(ctrl), float(info),
                               raw_status if it == last else "", dt, 0.0, dt, 1, accepted=viol <= 1e-6,
                               min_margin=mmin, kalman_gap=kgap)
