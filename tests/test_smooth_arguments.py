@@ -221,3 +221,34 @@ def test_unverified_warm_start_is_the_verified_one_and_smooth_verifies_its_answe
     res = bn.smooth(sc, path, method="ccp", max_iter=1, time_limit=1e-9)
     assert res.cost == pytest.approx(res.initial_cost) and res.safe
     assert res.verification["safe"] and bn.verify(sc, res.path).safe
+
+
+@pytest.mark.parametrize("K", [None, 20])
+def test_warm_start_senses_only_where_the_next_transition_needs_it(K):
+    """The minimal-sensing warm start (transitions checked in one batch, step
+    by step only from the first that is not clear) halves a posterior only
+    when the next transition needs it: each P_k is its prior P_{k-1} + W halved
+    h_k times, the h_k add up to ``added_sensing``, every transition clears
+    the start level, and with one halving fewer at a step that sensed, the
+    next transition would not (exact minimisation over the transition)."""
+    from belief_nlp.geometry import PolytopeSet, transition_minimiser
+    from belief_nlp.smoother.warmstart import _START_MARGIN
+
+    sc = bn.load_scenario("paper-multi")
+    ws = bn.warm_start(sc, bn.plan(sc, n_nodes=300, seed=2).path, K=K)
+    x, P, W = ws.path.x, ws.path.P, np.asarray(sc.W)
+    thr = sc.chi2 * (1 + _START_MARGIN)
+    hz = PolytopeSet.build(sc.hazards)
+    h = []
+    for k in range(1, ws.K + 1):
+        prior = P[k - 1] + W
+        n = int(round(np.log2(np.trace(prior) / np.trace(P[k]))))
+        np.testing.assert_allclose(P[k] * 2.0**n, prior, rtol=1e-12)
+        h.append(n)
+    assert ws.added_sensing == sum(h) > 0
+    assert np.all(transition_minimiser(x[:-1], P[:-1], x[1:], W, hz).dist2 >= thr)
+    sensed = [k for k in range(1, ws.K) if h[k - 1] > 0]
+    assert sensed
+    for k in sensed:
+        fewer = transition_minimiser(x[k], 2 * P[k], x[k + 1], W, hz, threshold=thr)
+        assert np.any(fewer.dist2 < thr), k

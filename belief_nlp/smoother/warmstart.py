@@ -281,7 +281,23 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
     P = np.empty((K_ + 1, scenario.dim, scenario.dim))
     P[0] = scenario.P0
     halvings = 0
-    for k in range(1, K_ + 1):
+
+    def step(k: int) -> None:            # the posterior after transition k, from P[k - 1]
+        P_prior = P[k - 1] + W
+        P[k] = belief.matrix_minimum(P_prior, target_P[k]) if sensing == "path" else P_prior
+
+    k = 1
+    while k <= K_:
+        # every transition from k on in one batch, with the posteriors the loop
+        # below gives when none needs more sensing (the common case); the loop
+        # runs from the first transition that is not clear
+        for i in range(k, K_ + 1):
+            step(i)
+        tm = transition_minimiser(x[k - 1:-1], P[k - 1:-1], x[k:], W, hazards, threshold=thr)
+        not_clear = np.flatnonzero(np.any(tm.dist2 < thr, axis=1))
+        if not_clear.size == 0:
+            break
+        k += int(not_clear[0])
         while True:
             tm = transition_minimiser(x[k - 1], P[k - 1], x[k], W, hazards, threshold=thr)
             bad = np.nonzero(tm.dist2[0] < thr)[0]
@@ -298,8 +314,8 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
                     transition=k, obstacle=scenario.hazards[j].name)
             P[k - 1] = 0.5 * P[k - 1]
             halvings += 1
-        P_prior = P[k - 1] + W
-        P[k] = belief.matrix_minimum(P_prior, target_P[k]) if sensing == "path" else P_prior
+        step(k)
+        k += 1
     # final posterior inside the target
     T = scenario.target
     if not T.contains(x[-1]):
