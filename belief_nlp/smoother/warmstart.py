@@ -272,7 +272,7 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
         raise ValidationError("path.x", "the path must start at the scenario's start mean x0")
     x = resample_means(path.x, K) if steps is None else _split(np.asarray(path.x, float), steps)
     K_ = x.shape[0] - 1
-    target_P = _target_posteriors(path, x)
+    target_P = _target_posteriors(path, x) if sensing == "path" else None     # "minimal" never reads it
     chi2 = scenario.chi2                                     # the target's level
     chi2_c = chi2 if chi2_collision is None else float(chi2_collision)
     hazards = PolytopeSet.cached(scenario.hazards)
