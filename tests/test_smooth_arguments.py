@@ -252,3 +252,32 @@ def test_warm_start_senses_only_where_the_next_transition_needs_it(K):
     for k in sensed:
         fewer = transition_minimiser(x[k], 2 * P[k], x[k + 1], W, hz, threshold=thr)
         assert np.any(fewer.dist2 < thr), k
+
+
+def test_check_of_a_point_seen_before_is_the_same_proof():
+    """SmoothingProblem.check returns its earlier result for a point with the
+    same content (a copy too), recomputes for changed content, and the
+    result equals a fresh computation (_check)."""
+    from belief_nlp.model import BeliefModel
+    from belief_nlp.smoother.context import SmoothingProblem
+
+    sc, path = paper_multi_path_pair(steps_per_segment=2)
+    ws = bn.warm_start(sc, path)
+    model = BeliefModel(sc, ws.K, 0.1)
+    prob = SmoothingProblem(sc, ws, model, max_iter=10, tol=1e-4, time_limit=None, t0=time.perf_counter(),
+                            solver=None, solver_options={}, progress=False, keep_iterates=False, callback=None,
+                            method="test")
+    z = prob.start.copy()
+    first = prob.check(z)
+    assert prob.check(z.copy()) is first
+    fresh = prob._check(z.copy())
+    assert (fresh.margin, fresh.target, fresh.upper) == (first.margin, first.target, first.upper)
+    # shrink every certificate: a different point, a different (weaker) proof
+    z2 = z.copy()
+    z2.lam = 0.5 * z2.lam
+    other = prob.check(z2)
+    assert other is not first and other.margin != first.margin
+    # a result whose point is changed afterwards is not handed out again
+    first.point.x[1, 0] += 1e-3
+    again = prob.check(z)
+    assert again is not first and again.margin == prob._check(z).margin
