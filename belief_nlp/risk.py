@@ -216,7 +216,7 @@ def path_risk(scenario, path, certificates: np.ndarray | None = None) -> RiskBou
     """
     x, P, W = path.x, path.P, path.transition_noise
     hz = scenario.hazards
-    tm = transition_minimiser(x[:-1], P[:-1], x[1:], W, PolytopeSet.build(hz), want_lam=True)
+    tm = transition_minimiser(x[:-1], P[:-1], x[1:], W, PolytopeSet.cached(hz), want_lam=True)
     F = tm.lam.shape[-1]
     A = np.zeros((len(hz), F, path.dim))
     b = np.ones((len(hz), F))                                   # padded faces: a zero row with b = 1 (inert)
@@ -253,7 +253,7 @@ def surrogate_clearance(scenario, path) -> np.ndarray:
 
     Sig = surrogate_covariances(path.P, path.P_prior, path.transition_noise)
     tm = transition_minimiser(path.x[:-1], Sig, path.x[1:], np.zeros_like(Sig),
-                              PolytopeSet.build(scenario.hazards))
+                              PolytopeSet.cached(scenario.hazards))
     return tm.lower
 
 

@@ -541,3 +541,23 @@ def test_theorem1_minimax_matches_exact_minimum():
         exact = geo.transition_clearance(x0, P0, x1, W, poly.A, poly.b, CHI2) + CHI2
         best = _best_common_certificate(poly.A, poly.b, x0, P0, x1, P0 + W)
         assert best == pytest.approx(exact, rel=1e-5, abs=1e-7)
+
+
+def test_cached_polytope_sets_are_the_built_ones_and_read_only():
+    """geo.PolytopeSet.cached returns one set per content: the same object for the
+    same polytopes, equal to a fresh build, and read-only (a shared set
+    cannot be changed under another caller); other content gets its own set."""
+    sc = bn.load_scenario("paper-multi")
+    a = geo.PolytopeSet.cached(sc.hazards)
+    assert geo.PolytopeSet.cached(list(sc.hazards)) is a
+    fresh = geo.PolytopeSet.build(sc.hazards)
+    np.testing.assert_array_equal(a.A, fresh.A)
+    np.testing.assert_array_equal(a.planar.M_tr, fresh.planar.M_tr)
+    with pytest.raises(ValueError):
+        a.A[0, 0, 0] = 1.0
+    scaled = geo.PolytopeSet.cached([(h.A, h.b / 2) for h in sc.hazards])
+    assert scaled is not a and geo.PolytopeSet.cached([(h.A, h.b / 2) for h in sc.hazards]) is scaled
+    np.testing.assert_allclose(scaled.b[:, 0], a.b[:, 0] / 2)
+    # the same distances as the fresh set
+    x, P = np.array([[0.3, 0.4]]), np.array([np.eye(2) * 1e-3])
+    np.testing.assert_array_equal(geo.squared_mahalanobis_distance(x, P, a), geo.squared_mahalanobis_distance(x, P, fresh))

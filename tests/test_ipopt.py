@@ -140,7 +140,7 @@ def test_nlp_uses_the_model_margins(hand_start):
         np.testing.assert_allclose(back.S[1:], z.S[1:], atol=1e-9 * max(1.0, np.abs(z.S).max()))
         np.testing.assert_allclose(back.lam, z.lam)
         # constraints hold at the warm start (Kalman rows exactly, margins >= 0)
-        g = np.asarray(ca.Function("g", [nlp.z], [nlp.g])(zv)).ravel()
+        g = np.asarray(ca.Function("g", [nlp.z, nlp.p], [nlp.g])(zv, nlp.anchor(z))).ravel()
         assert np.all(g >= nlp.lbg - 1e-6) and np.all(g <= nlp.ubg + 1e-6)
 
 
@@ -216,6 +216,95 @@ def test_cache_reuses_the_solver(small_start):
     assert first.stats["build"] == "built" and again.stats["build"] == "memory" and fresh.stats["build"] == "built"
     assert again.cost == first.cost == fresh.cost and again.nit == first.nit
     assert len(again.history) == len(first.history)          # the recorder starts afresh
+
+
+def test_one_solver_serves_every_alpha(small_start):
+    """alpha is the NLP's parameter: a solver built at one alpha answers
+    another exactly as a solver built for that alpha does."""
+    sc, ws = small_start
+    from belief_nlp.methods.ipopt import clear_cache
+
+    clear_cache()
+    bn.smooth(sc, ws, method="ipopt", max_iter=3000, alpha=0.5)
+    reused = bn.smooth(sc, ws, method="ipopt", max_iter=3000, alpha=2.0)
+    clear_cache()
+    fresh = bn.smooth(sc, ws, method="ipopt", max_iter=3000, alpha=2.0)
+    assert reused.stats["build"] == "memory" and fresh.stats["build"] == "built"
+    assert reused.status == fresh.status == "converged" and reused.safe
+    assert reused.cost == pytest.approx(fresh.cost, rel=1e-8) and reused.nit == fresh.nit
+    np.testing.assert_allclose(reused.path.x, fresh.path.x, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(reused.path.S, fresh.path.S, rtol=1e-8, atol=1e-8 * np.abs(fresh.path.S).max())
+
+
+def test_nlp_objective_takes_alpha_from_its_parameter(hand_start):
+    """The NLP built from a model at alpha = 0.1, given alpha = 1.7 as its
+    parameter, is the cost of the model at alpha = 1.7 (the proximal term is
+    0 at its own anchor)."""
+    sc, ws = hand_start
+    model = BeliefModel(sc, ws.K, 0.1)
+    z = model.tighten(model.from_path(ws.path, ws.lam))
+    other = BeliefModel(sc, ws.K, 1.7)
+    for formulation in FORMULATIONS:
+        nlp = build_nlp(model, formulation, floor=1e-9)
+        f = ca.Function("f", [nlp.z, nlp.p], [nlp.f])
+        assert float(f(nlp.pack(z), nlp.anchor(z, 1.7))) == pytest.approx(other.cost(z)[0], rel=1e-9)
+        assert float(f(nlp.pack(z), nlp.anchor(z))) == pytest.approx(model.cost(z)[0], rel=1e-9)
+
+
+def test_polish_on_shared_derivatives_equals_a_fresh_cholesky_solver(small_start):
+    """The "cholesky" variant of a "logchol" NLP is the same graph (its switch
+    off); an IPOPT solver given the logchol solver's derivative functions
+    reaches the optimum of a solver built on a fresh "cholesky" NLP."""
+    from belief_nlp.methods.ipopt import DEFAULT_IPOPT_OPTIONS, IPOPT, LOGCHOL_IPOPT_OPTIONS
+
+    sc, ws = small_start
+    model = BeliefModel(sc, ws.K, 0.3)
+    z = model.tighten(model.from_path(ws.path, ws.lam))
+    log = build_nlp(model, "logchol")
+    chol = log.variant("cholesky")
+    assert chol.formulation == "cholesky" and chol.f is log.f and chol.g is log.g and chol.z is log.z
+    opts = {"ipopt": {**DEFAULT_IPOPT_OPTIONS, "tol": 1e-10}, "print_time": False}
+    first = ca.nlpsol("a", "ipopt", {"x": log.z, "p": log.p, "f": log.f, "g": log.g},
+                      {**opts, "ipopt": {**opts["ipopt"], **LOGCHOL_IPOPT_OPTIONS}})
+    shared = {o: first.get_function(n) for o, n in IPOPT.shared_functions.items()}
+    given = ca.nlpsol("b", "ipopt", {"x": chol.z, "p": chol.p, "f": chol.f, "g": chol.g}, {**opts, **shared})
+    ref_nlp = build_nlp(model, "cholesky")
+    ref = ca.nlpsol("c", "ipopt", {"x": ref_nlp.z, "p": ref_nlp.p, "f": ref_nlp.f, "g": ref_nlp.g}, opts)
+    sols = [s(x0=n.pack(z), p=n.anchor(z), lbx=n.lbz, ubx=n.ubz, lbg=n.lbg, ubg=n.ubg)
+            for s, n in ((given, chol), (ref, ref_nlp))]
+    assert given.stats()["success"] and ref.stats()["success"]
+    assert float(sols[0]["f"]) == pytest.approx(float(sols[1]["f"]), rel=1e-8)
+    np.testing.assert_allclose(np.asarray(sols[0]["x"]), np.asarray(sols[1]["x"]), rtol=1e-6, atol=1e-6)
+    # the logchol view of the same graph is the exp-diagonal NLP: its rows at
+    # the packed warm start are the model's margins (as for a fresh build)
+    back = log.variant("logchol", 1e-9)
+    col, _ = (np.asarray(v).ravel() for v in back.margins(back.pack(z)))
+    start, end = model.transition_margins(z)
+    np.testing.assert_allclose(col, np.stack([start, end], axis=-1).ravel(), rtol=1e-8, atol=1e-8)
+
+
+def test_history_cost_parts_are_the_nlp_parts_of_the_iterates(small_start):
+    """The recorder's control and information (evaluated in the iteration
+    callback) are the NLP's cost parts of the iterates it stored, and the
+    history's costs are control + alpha information."""
+    from belief_nlp.methods import nlp_engine
+    from belief_nlp.methods.ipopt import clear_cache
+
+    sc, ws = small_start
+    clear_cache()
+    res = bn.smooth(sc, ws, method="ipopt", max_iter=3000, alpha=0.7)
+    checked = 0
+    for nlp, _, rec in nlp_engine._CACHE._d.values():
+        if len(rec.pvs) != 1 or not rec.rows:
+            continue
+        for row, zv in zip(rec.rows, rec.zs):
+            ctrl, info, _ = (float(v) for v in nlp.parts(zv, rec.pvs[0]))
+            assert row[5] == pytest.approx(ctrl, rel=1e-12, abs=1e-15)
+            assert row[6] == pytest.approx(info, rel=1e-12, abs=1e-15)
+            checked += 1
+    assert checked >= res.nit // 2
+    for h in res.history[1:]:
+        assert h.cost == pytest.approx(h.control + 0.7 * h.information, rel=1e-12)
 
 
 def test_status_mapping():

@@ -50,6 +50,19 @@ def test_additive_terms_sum_back():
         assert abs(float(f(v))) < 1e-12
 
 
+def test_additive_terms_open_products_with_parameters():
+    """Given the variables, a product with a factor free of them (a parameter
+    such as alpha) is opened and the factor kept on every term."""
+    x, a = ca.SX.sym("x", 2), ca.SX.sym("a")
+    e = x[0] ** 2 + a * (0.5 * (ca.log(x[1]) - x[0] * x[1]))
+    assert len(additive_terms(e)) == 2                  # a * (...) is one term without z
+    terms = additive_terms(e, x)
+    assert len(terms) == 3 and sum(ca.depends_on(t, a) for t in terms) == 2
+    f = ca.Function("f", [x, a], [e - sum(terms)])
+    for v, av in (([1.0, 2.0], 0.3), ([0.3, 1.7], -2.0)):
+        assert abs(float(f(v, av))) < 1e-12
+
+
 @pytest.mark.parametrize("formulation", ["logchol", "cholesky", "minors"])
 def test_same_values_and_fatrop_structure(small, formulation):
     """At the warm start the stage form's cost equals the NLP's, its source rows

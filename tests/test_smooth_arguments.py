@@ -105,10 +105,10 @@ def test_an_infeasible_horizon_falls_back_to_one_step_per_edge_and_says_so(monke
     sc, path = paper_multi_path_pair(steps_per_segment=1)        # 5 edges
     real = driver.warm_start
 
-    def refuse_k(scenario, p, K=None, sensing="minimal"):
+    def refuse_k(scenario, p, K=None, sensing="minimal", **kw):
         if K is not None and K != p.K:
             raise bn.InfeasibleStartError("no feasible allocation (simulated)", transition=1, obstacle="x")
-        return real(scenario, p, K=K, sensing=sensing)
+        return real(scenario, p, K=K, sensing=sensing, **kw)
 
     monkeypatch.setattr(driver, "warm_start", refuse_k)
     res = bn.smooth(sc, path, K=20, max_iter=3)
@@ -203,3 +203,81 @@ def test_method_options_as_a_dict_like_scipy():
     a = bn.smooth(sc, path, method="ccp", max_iter=2, options={"monotone_tol": 1e-6})
     b = bn.smooth(sc, path, method="ccp", max_iter=2, monotone_tol=1e-6)
     assert a.cost == b.cost
+
+
+def test_unverified_warm_start_is_the_verified_one_and_smooth_verifies_its_answer():
+    """warm_start(verify_start=False) (what smooth builds) is the same start
+    without the report; smooth still verifies the path it returns, here the
+    warm start itself (max_iter=1 keeps no better iterate)."""
+    from conftest import paper_multi_path_pair
+
+    sc, path = paper_multi_path_pair(steps_per_segment=2)
+    full = bn.warm_start(sc, path)
+    lazy = bn.warm_start(sc, path, verify_start=False)
+    assert full.report.safe and lazy.report is None
+    np.testing.assert_array_equal(lazy.path.x, full.path.x)
+    np.testing.assert_array_equal(lazy.path.P, full.path.P)
+    np.testing.assert_array_equal(lazy.lam, full.lam)
+    res = bn.smooth(sc, path, method="ccp", max_iter=1, time_limit=1e-9)
+    assert res.cost == pytest.approx(res.initial_cost) and res.safe
+    assert res.verification["safe"] and bn.verify(sc, res.path).safe
+
+
+@pytest.mark.parametrize("K", [None, 20])
+def test_warm_start_senses_only_where_the_next_transition_needs_it(K):
+    """The minimal-sensing warm start (transitions checked in one batch, step
+    by step only from the first that is not clear) halves a posterior only
+    when the next transition needs it: each P_k is its prior P_{k-1} + W halved
+    h_k times, the h_k add up to ``added_sensing``, every transition clears
+    the start level, and with one halving fewer at a step that sensed, the
+    next transition would not (exact minimisation over the transition)."""
+    from belief_nlp.geometry import PolytopeSet, transition_minimiser
+    from belief_nlp.smoother.warmstart import _START_MARGIN
+
+    sc = bn.load_scenario("paper-multi")
+    ws = bn.warm_start(sc, bn.plan(sc, n_nodes=300, seed=2).path, K=K)
+    x, P, W = ws.path.x, ws.path.P, np.asarray(sc.W)
+    thr = sc.chi2 * (1 + _START_MARGIN)
+    hz = PolytopeSet.build(sc.hazards)
+    h = []
+    for k in range(1, ws.K + 1):
+        prior = P[k - 1] + W
+        n = int(round(np.log2(np.trace(prior) / np.trace(P[k]))))
+        np.testing.assert_allclose(P[k] * 2.0**n, prior, rtol=1e-12)
+        h.append(n)
+    assert ws.added_sensing == sum(h) > 0
+    assert np.all(transition_minimiser(x[:-1], P[:-1], x[1:], W, hz).dist2 >= thr)
+    sensed = [k for k in range(1, ws.K) if h[k - 1] > 0]
+    assert sensed
+    for k in sensed:
+        fewer = transition_minimiser(x[k], 2 * P[k], x[k + 1], W, hz, threshold=thr)
+        assert np.any(fewer.dist2 < thr), k
+
+
+def test_check_of_a_point_seen_before_is_the_same_proof():
+    """SmoothingProblem.check returns its earlier result for a point with the
+    same content (a copy too), recomputes for changed content, and the
+    result equals a fresh computation (_check)."""
+    from belief_nlp.model import BeliefModel
+    from belief_nlp.smoother.context import SmoothingProblem
+
+    sc, path = paper_multi_path_pair(steps_per_segment=2)
+    ws = bn.warm_start(sc, path)
+    model = BeliefModel(sc, ws.K, 0.1)
+    prob = SmoothingProblem(sc, ws, model, max_iter=10, tol=1e-4, time_limit=None, t0=time.perf_counter(),
+                            solver=None, solver_options={}, progress=False, keep_iterates=False, callback=None,
+                            method="test")
+    z = prob.start.copy()
+    first = prob.check(z)
+    assert prob.check(z.copy()) is first
+    fresh = prob._check(z.copy())
+    assert (fresh.margin, fresh.target, fresh.upper) == (first.margin, first.target, first.upper)
+    # shrink every certificate: a different point, a different (weaker) proof
+    z2 = z.copy()
+    z2.lam = 0.5 * z2.lam
+    other = prob.check(z2)
+    assert other is not first and other.margin != first.margin
+    # a result whose point is changed afterwards is not handed out again
+    first.point.x[1, 0] += 1e-3
+    again = prob.check(z)
+    assert again is not first and again.margin == prob._check(z).margin

@@ -288,6 +288,21 @@ class PolytopeSet:
         planar = _Planar.build([(A, b) for A, b, _ in items]) if d == 2 else None
         return cls(A_pad, b_pad, nf, tuple(cand), tuple(names), scale, planar)
 
+    @classmethod
+    def cached(cls, polytopes: Sequence) -> "PolytopeSet":
+        """:meth:`build`, kept for the next call with the same polytopes (by
+        content: faces, offsets, vertices, names). The build is the expensive
+        part (~10 ms for a 10-polygon map: face sets, vertex certificates) and
+        one smoothing call needs the same scenario's set four or five times."""
+        key = tuple(_content(p) for p in polytopes)
+        hit = _SETS.get(key)
+        if hit is None:
+            hit = _SETS[key] = cls.build(polytopes)
+            _read_only(hit)
+            while len(_SETS) > 32:
+                _SETS.pop(next(iter(_SETS)))
+        return hit
+
     @property
     def dim(self) -> int:
         """Dimension d of the space."""
@@ -295,6 +310,35 @@ class PolytopeSet:
 
     def __len__(self) -> int:
         return int(self.A.shape[0])
+
+
+_SETS: dict = {}     # PolytopeSet.cached: content key -> set, oldest first
+
+
+def _content(p) -> tuple:
+    """A hashable key of a Polytope or an (A, b) pair by content."""
+    if isinstance(p, tuple):
+        A, b, V, name = np.asarray(p[0], float), np.asarray(p[1], float), None, None
+    else:
+        A, b, V, name = p.A, p.b, p.vertices, p.name
+    arrays = tuple((a.shape, np.ascontiguousarray(a, float).tobytes())
+                   for a in (A, b) + ((V,) if V is not None else ()))
+    return (type(p) is tuple, name, arrays)
+
+
+def _read_only(obj) -> None:
+    """Every array of a shared set (and of its planar part) read-only: a
+    caller that writes into one raises instead of changing the others' set."""
+    for v in vars(obj).values():
+        if isinstance(v, np.ndarray):
+            v.setflags(write=False)
+        elif isinstance(v, tuple):
+            for a in v:
+                for x in (a if isinstance(a, tuple) else (a,)):
+                    if isinstance(x, np.ndarray):
+                        x.setflags(write=False)
+        elif isinstance(v, _Planar):
+            _read_only(v)
 
 
 @lru_cache(maxsize=256)

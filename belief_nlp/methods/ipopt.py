@@ -61,6 +61,7 @@ class IpoptBackend(NLPBackend):
 
     defaults = DEFAULT_IPOPT_OPTIONS
     stage_options = {"logchol": LOGCHOL_IPOPT_OPTIONS, "polish": POLISH_IPOPT_OPTIONS}
+    shared_functions = {"grad_f": "nlp_grad_f", "jac_g": "nlp_jac_g", "hess_lag": "nlp_hess_l"}
 
     def nlpsol_options(self, opts: dict, log_path: str | None) -> dict:
         return {"ipopt": {**opts, "output_file": log_path, "file_print_level": 5}}

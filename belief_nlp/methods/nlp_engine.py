@@ -36,7 +36,7 @@ import contextlib
 import logging
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 import casadi as ca
@@ -56,8 +56,10 @@ __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
 
 log = logging.getLogger("belief_nlp.smoother")
 
-# 16: every NLP method's two stages at two alphas for one K (IPOPT, fatrop, Uno: 12)
+# solvers: 16, every NLP method's two stages (alpha is a parameter) at a few K
+# (IPOPT, fatrop, Uno); NLP graphs with the derivatives built on them: 8
 _CACHE = MemoryCache(16)
+_GRAPHS = MemoryCache(8)
 
 
 class NLPBackend:
@@ -74,6 +76,11 @@ class NLPBackend:
     #: names of the plug-in's own iteration limit and tolerance options
     limit_key = "max_iter"
     tol_key = "tol"
+    #: ``ca.nlpsol`` options that take derivative functions, and the names of
+    #: the solver's own functions for them: a second solver on the same NLP
+    #: graph (the polish stage) is given the first one's instead of deriving
+    #: them again (empty: the plug-in derives its own every time)
+    shared_functions: dict = {}
     #: whether the plug-in calls CasADi's ``iteration_callback`` every
     #: iteration. One that does not (fatrop) gets its stage budget as its own
     #: limit, no restarts, one history record per solve, and the time limit
@@ -134,6 +141,7 @@ class NLPBackend:
 def clear_cache() -> None:
     """Drop every cached NLP / solver instance."""
     _CACHE.clear()
+    _GRAPHS.clear()
 
 
 def _log_size(log_path: str | None) -> int:
@@ -143,33 +151,75 @@ def _log_size(log_path: str | None) -> int:
         return 0
 
 
+def _base_key(problem: SmoothingProblem, formulation: str, margin: float, regularisation: float) -> str:
+    """Key of an NLP graph: the model's data without alpha (the NLP's
+    parameter), the margin, the regularisation and the formulation ("cholesky"
+    and "logchol" are one graph, :meth:`NLPProblem.variant`)."""
+    family = "cholesky|logchol" if formulation in ("cholesky", "logchol") else formulation
+    return problem_key(replace(problem.model.data, alpha=0.0), margin, f"nlp:{family}:{regularisation}")
+
+
+def _nlp(problem: SmoothingProblem, formulation: str, margin: float, regularisation: float, floor: float,
+         cache: bool) -> tuple[NLPProblem, dict]:
+    """The NLP of ``formulation`` and the derivative functions solvers built
+    on its graph so far (by plug-in), from the cache when the graph is there."""
+    key = _base_key(problem, formulation, margin, regularisation)
+    entry = _GRAPHS.get(key) if cache else None
+    if entry is None:
+        entry = (build_nlp(problem.model, formulation, margin=margin, regularisation=regularisation, floor=floor), {})
+        if cache:
+            _GRAPHS.put(key, entry)
+    base, shared = entry
+    nlp = base if base.formulation == formulation and base.info.get("floor") == floor \
+        else base.variant(formulation, floor)
+    return nlp, shared
+
+
 def _solver(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulation: str, margin: float,
             regularisation: float, floor: float, candidates: int, cache: bool) -> tuple[NLPProblem, Any, Recorder, str]:
     """NLP, nlpsol instance and recorder, from the cache when the model and options match."""
     # the floor shapes only the "logchol" NLP: it stays out of the other
-    # formulations' keys (no second build of an identical NLP)
+    # formulations' keys (no second build of an identical NLP); alpha is the
+    # NLP's parameter, not part of it: one solver serves every alpha
     floor_key = floor if formulation == "logchol" else None
-    key = problem_key(problem.model.data, margin,
+    key = problem_key(replace(problem.model.data, alpha=0.0), margin,
                       f"{backend.plugin}:{formulation}:{regularisation}:{floor_key}:{sorted(opts.items())!r}")
     entry = _CACHE.get(key) if cache else None
     if entry is not None:
         return (*entry, "memory")
-    nlp = backend.form(build_nlp(problem.model, formulation, margin=margin, regularisation=regularisation,
-                                 floor=floor))
-    recorder = Recorder(nlp, problem.model.data.alpha, keep=candidates, bar=None, stall=0)
+    view, shared = _nlp(problem, formulation, margin, regularisation, floor, cache)
+    nlp = backend.form(view)
+    # derivatives built for the graph by an earlier solver of this plug-in
+    # (the other stage's) are handed over instead of derived again
+    given = shared.get(backend.plugin, {}) if nlp is view else {}
+    recorder = Recorder(nlp, keep=candidates, bar=None, stall=0)
     recorder.log_path = backend.log_file()
     try:
         solver = ca.nlpsol(f"belief_nlp_{backend.plugin}", backend.plugin,
                            {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
                            {**backend.nlpsol_options(opts, recorder.log_path), **backend.structure_options(nlp),
-                            "print_time": False,
+                            **given, "print_time": False,
                             "iteration_callback": recorder, "error_on_fail": False, "show_eval_warnings": False})
     except RuntimeError as exc:  # bad option names or values
         raise ValidationError("solver_options",
                               f"{backend.name} refused them: {str(exc).splitlines()[-1][:200]}") from None
+    if nlp is view and backend.shared_functions and not given:
+        shared[backend.plugin] = _derivatives(solver, backend.shared_functions)
     if cache:
         _CACHE.put(key, (nlp, solver, recorder))
-    return nlp, solver, recorder, "built"
+    return nlp, solver, recorder, "built" if not given else "built (derivatives shared)"
+
+
+def _derivatives(solver: Any, names: dict) -> dict:
+    """``{option: function}`` of the derivative functions ``solver`` has (an
+    option such as a quasi-Newton Hessian leaves some out)."""
+    out = {}
+    for option, name in names.items():
+        try:
+            out[option] = solver.get_function(name)
+        except RuntimeError:
+            pass
+    return out
 
 
 def _safe_points(problem: SmoothingProblem, nlp: NLPProblem, recorder: Recorder, z_end: np.ndarray | None,
@@ -201,17 +251,15 @@ def _safe_points(problem: SmoothingProblem, nlp: NLPProblem, recorder: Recorder,
 
 def _record_attempt(problem: SmoothingProblem, nlp: NLPProblem, recorder: Recorder, start: int,
                     found: list, raw_status: str) -> None:
-    """History records of one attempt's iterations (cost parts in one batch)."""
-    rows, zs = recorder.rows[start:], recorder.zs[start:]
+    """History records of one attempt's iterations (cost parts from the recorder)."""
+    rows = recorder.rows[start:]
     if not rows:
         return
     D = problem.model.data
-    Z = np.stack(zs, axis=1)
-    ctrls, infos, _ = (np.asarray(v).ravel() for v in nlp.parts.map(Z.shape[1])(Z, recorder.pvs[-1]))
     safe = {it: z for _, z, _, it in found if it is not None}
     last = rows[-1][0]
     final = next((z for _, z, _, it in found if it is None), None)
-    for (it, mmin, viol, dt, kgap), ctrl, info in zip(rows, ctrls, infos):
+    for it, mmin, viol, dt, kgap, ctrl, info in rows:
         rec = IterationRecord(it, float(ctrl + D.alpha * info), float(ctrl), float(info),
                               raw_status if it == last else "", dt, 0.0, dt, 1, accepted=viol <= 1e-6,
                               min_margin=mmin, kalman_gap=kgap)
@@ -263,7 +311,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         if problem.out_of_time() or remaining <= 0:
             stage.status = _STOPS["time_limit" if problem.out_of_time() else "max_iter"]
             break
-        pv = nlp.anchor(z_start)
+        pv = nlp.anchor(z_start, problem.model.data.alpha)
         n_rows = len(recorder.rows)
         recorder.begin(pv, budget, problem.deadline)
         t_solve, c_solve, log_at = time.perf_counter(), time.process_time(), _log_size(recorder.log_path)

@@ -19,10 +19,9 @@ class Recorder(ca.Callback):
     One recorder serves every attempt (restart) of a solve; ``begin`` resets
     the per-attempt counter and sets the parameter values."""
 
-    def __init__(self, nlp: NLPProblem, alpha: float, keep: int, bar, stall: int = 0):
+    def __init__(self, nlp: NLPProblem, keep: int, bar, stall: int = 0):
         ca.Callback.__init__(self)
         self.nlp = nlp
-        self.alpha = alpha
         self.nx = int(nlp.z.shape[0])
         self.ng = int(nlp.g.shape[0])
         self.keep = keep
@@ -39,8 +38,8 @@ class Recorder(ca.Callback):
         self.best_cost = np.inf
         self.best_it = 0
         self.t_last = time.perf_counter()
-        self.rows: list[tuple] = []            # (iteration, min margin, violation, dt, kalman gap)
-        self.zs: list[np.ndarray] = []         # every iterate (for the history's costs and keep_iterates)
+        self.rows: list[tuple] = []            # (iteration, min margin, violation, dt, kalman gap, control, info)
+        self.zs: list[np.ndarray] = []         # every iterate (candidates, keep_iterates)
         self.pvs: list[np.ndarray] = []        # the parameter of each attempt
         self.best: list[tuple] = []            # min-heap of (-objective, iteration, z): the lowest
         self.construct("belief_nlp_nlp_recorder", {})
@@ -58,6 +57,7 @@ class Recorder(ca.Callback):
         self.offset += max(self.calls - 1, 0)
         self.calls = 0
         self.pv = pv
+        self.pv_dm = ca.DM(pv)
         self.pvs.append(pv)
         self.budget = budget
         self.deadline = deadline
@@ -96,7 +96,13 @@ class Recorder(ca.Callback):
         if it == 0:                # IPOPT's iteration 0 is the start point itself
             self.t_last = time.perf_counter()
             return [0]
-        return [int(self._row(it + self.offset, arg[0].full().ravel(), arg[2].full().ravel(), float(arg[1])))]
+        # x and g are dense (get_sparsity_in): their nonzeros are the vectors,
+        # converted in a third of the time .full() takes (every iteration pays it);
+        # the cost parts from x as it comes (a DM): converting the iterates
+        # to a DM after the solve cost 4x more
+        ctrl, info, _ = self.nlp.parts.call([arg[0], self.pv_dm])
+        return [int(self._row(it + self.offset, np.array(arg[0].nonzeros()), np.array(arg[2].nonzeros()),
+                              float(arg[1]), (float(ctrl), float(info))))]
 
     def solved(self, zv: np.ndarray, gv: np.ndarray, cost: float, stats: dict) -> None:
         """The end of a solve by a plug-in that never calls back (fatrop): its
@@ -104,13 +110,15 @@ class Recorder(ca.Callback):
         own iteration count."""
         n_it = int(stats.get("iter_count", 0))
         self.calls = n_it + 1
-        self._row(self.offset + max(n_it, 1), zv, gv, cost)
+        ctrl, info, _ = self.nlp.parts(zv, self.pv)
+        self._row(self.offset + max(n_it, 1), zv, gv, cost, (float(ctrl), float(info)))
         if stats.get("success"):                # converged within the budget: no stop of ours
             self.stop_reason = ""
 
-    def _row(self, it: int, zv: np.ndarray, gv: np.ndarray, cost: float) -> bool:
+    def _row(self, it: int, zv: np.ndarray, gv: np.ndarray, cost: float, parts: tuple[float, float]) -> bool:
         """Record iterate ``it`` (objective incl. the tiny proximal term:
-        ranks iterates); True asks the solver to stop."""
+        ranks iterates; ``parts``: its control and information); True asks
+        the solver to stop."""
         now = time.perf_counter()
         dt, self.t_last = now - self.t_last, now
         nlp = self.nlp
@@ -123,8 +131,8 @@ class Recorder(ca.Callback):
         # Kalman rows are entries of Q_k^-1 - Y_{k-1}^-1 - W in scaled units, where
         # ||Y^-1 + W|| >= ||W'|| = 1: the largest one is a relative gap
         kgap = float(np.max(np.abs(kal), initial=0.0))
-        self.rows.append((it, min_margin, viol, dt, kgap))
-        self.zs.append(zv)                      # cost parts evaluated in one batch after the solve
+        self.rows.append((it, min_margin, viol, dt, kgap, *parts))
+        self.zs.append(zv)
         # candidates for the fallback: iterates feasible for the NLP
         feasible = viol <= 1e-6 and np.isfinite(cost)     # candidates; the exact check decides
         if feasible and cost < self.best_cost * (1 - 1e-7):

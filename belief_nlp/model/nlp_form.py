@@ -53,7 +53,12 @@ class NLPProblem:
     Attributes
     ----------
     z, p, f, g : CasADi SX decision vector, parameter (the certificates lam_0
-        of the proximal term), objective and constraints.
+        of the proximal term, alpha, and the switch of the "cholesky" /
+        "logchol" pair), objective and constraints (both read p: evaluate them
+        at ``anchor(point)``). alpha and the switch are parameters, not
+        constants, so that one solver serves every alpha of a (scenario, K)
+        and both NLP stages share one graph and its derivatives (their
+        construction is most of a first call: docs/numerics.md, "Construction cost").
     lbz, ubz, lbg, ubg : bounds (numpy).
     parts : Function (z, p) -> (control [m^2], information [nats], regulariser).
     margins : Function z -> (collision margins (2 K J,), target margins (N,));
@@ -62,7 +67,8 @@ class NLPProblem:
         Mahalanobis clearance minus chi2), ordered (k, j, start/end).
     pack : Layout -> z values; unpack : z values -> Layout (S from its
         factor; Q as the variables say -- use model.tighten for the Kalman one).
-    anchor : Layout -> p values (its certificates).
+    anchor : (Layout, alpha=None) -> p values (the point's certificates and
+        alpha; None: the alpha of the model the NLP was built from).
     n_collision : number of collision rows at the start of g.
     """
 
@@ -79,9 +85,20 @@ class NLPProblem:
     margins: ca.Function
     pack: Callable[[Layout], np.ndarray]
     unpack: Callable[[np.ndarray], Layout]
-    anchor: Callable[[Layout], np.ndarray]
+    anchor: Callable[..., np.ndarray]
     n_collision: int
     info: dict = field(default_factory=dict)
+    _view: Callable[[str, float], "NLPProblem"] | None = field(default=None, repr=False)
+
+    def variant(self, formulation: str, floor: float | None = None) -> "NLPProblem":
+        """The other member of the "cholesky" / "logchol" pair on the same
+        expression graph (the same z, p, f, g objects: a solver's derivative
+        functions serve both); its own bounds, packing and parameter value.
+        ``floor`` defaults to this one's."""
+        if self._view is None or formulation not in ("cholesky", "logchol"):
+            raise ValidationError("formulation", f"the {self.formulation!r} NLP has no {formulation!r} variant "
+                                                 f"(only 'cholesky' and 'logchol' share one graph)")
+        return self._view(formulation, self.info["floor"] if floor is None else float(floor))
 
     def without_sensing(self, lay: Layout, floor: float, slack: float = 0.1) -> tuple[np.ndarray, np.ndarray,
                                                                                     np.ndarray]:
@@ -161,7 +178,7 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
     margin : relative clearance margin kept in every collision constraint
         (m = margin * chi2) and absolute one (scaled length) in containment.
     regularisation : eps of the certificates' proximal term (0 to drop it);
-        its centre lam_0 is the NLP's parameter (``NLPProblem.anchor``).
+        its centre lam_0 is the NLP's parameter (``NLPProblem.anchor``), as is alpha.
     floor : smallest diagonal entry of L (scaled units) for "logchol".
     """
     if formulation not in FORMULATIONS:
@@ -175,6 +192,11 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
     offs = np.concatenate([[0], np.cumsum(nf)])
     n_lam = int(offs[-1])
     lift_q = formulation in ("cholesky", "logchol", "minors")
+    # "cholesky" and "logchol" are one expression graph: L_ii = s exp(s w) + (1 - s) w
+    # is exp(w) at s = 1 and w at s = 0, bit for bit (and so are its derivatives),
+    # so the two stages share one NLP and its derivatives (NLPProblem.variant)
+    pair = formulation in ("cholesky", "logchol")
+    switch = ca.SX.sym("logchol")
 
     X = ca.SX.sym("x", d, K)
     Sv = ca.SX.sym("s", t, K)
@@ -209,8 +231,9 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
                     g_psd.append(ca.det(Sk[rows, rows]))
         else:
             Lk = _lower(Sv[:, k - 1], tri, d)
-            if formulation == "logchol":
-                Lk = ca.tril(Lk, False) + ca.diag(ca.exp(ca.diag(Lk)))
+            if pair:
+                w = ca.diag(Lk)
+                Lk = ca.tril(Lk, False) + ca.diag(switch * ca.exp(switch * w) + (1 - switch) * w)
             Sk = Lk @ Lk.T
         Y.append(Q[k] + Sk)
 
@@ -223,10 +246,13 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
     # continuous-time surrogate: both ends under Sigma_k = Q_{k-1}^-1 + W (Sigma_1 = P0 + W),
     # information T_k (risk.continuous_surrogate)
     T = [None, ca.DM(D.Q1)] + [_sym_inv(ca.inv(Q[k - 1]) + W) for k in range(2, K + 1)] if D.continuous else None
+    AB = [(ca.DM(D.A[j]), ca.DM(D.b[j])) for j in range(J)]       # once per hazard, not per (k, j)
+    pads = [ca.SX.zeros(F - nf[j]) for j in range(J)]
     for k in range(1, K + 1):
+        lam_k = ca.vertsplit(Lam[:, k - 1], [int(o) for o in offs])
         for j in range(J):
-            lam = ca.vertcat(Lam[offs[j]:offs[j + 1], k - 1], ca.SX.zeros(F - nf[j]))
-            A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
+            lam = ca.vertcat(lam_k[j], pads[j])
+            A, b = AB[j]
             # the model's margins are at level chi2; a variable level moves them by chi2 - tau (1 + margin)
             shift = D.chi2 - (1 + margin) * Tau[j, k - 1] if budget else 0
             if T is not None:
@@ -241,8 +267,9 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
     g_tgt = [model.f_target(xs[K], Y[K], ca.DM(D.At[n]), D.bt[n]) for n in range(D.At.shape[0])]
 
     Lam0 = ca.SX.sym("lam0", n_lam, K)
+    alpha = ca.SX.sym("alpha")
     reg = 0.5 * regularisation * ca.sumsqr(Lam - Lam0)
-    p = ca.vec(Lam0)
+    p = ca.vertcat(ca.vec(Lam0), alpha, switch)
 
     z = ca.veccat(X, Sv, Mv, Lam, Tau)
     g_col_v = ca.vertcat(*g_col)
@@ -250,6 +277,13 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
     # the budget in its own units: sum g(tau) / budget <= 1, g(tau) = Phi_bar(sqrt(tau)) exactly
     g_bud = [ca.sum1(0.5 * (1 - ca.erf(ca.sqrt(ca.vec(Tau) / 2)))) / D.budget] if budget else []
     g = ca.vertcat(g_col_v, g_tgt_v, *g_kal, *g_psd, *g_bud)
+    f = control + alpha * information + reg
+    # the model's terms are mapped per hazard, each recomputing its step's
+    # inverse: eliminating the common subexpressions (exact: the same
+    # operations on the same inputs) halves the derivatives' size, their
+    # construction and evaluation time (docs/numerics.md, "Construction cost")
+    fg = ca.cse(ca.vertcat(f, g))
+    f, g = fg[0], fg[1:]
     n_col, n_tgt, n_kal, n_psd = len(g_col), len(g_tgt), t * len(g_kal), len(g_psd)
     lbg = np.concatenate([np.full(n_col, 0.0 if budget else margin * D.chi2), np.full(n_tgt, margin),
                           np.zeros(n_kal), np.zeros(n_psd), np.full(len(g_bud), -np.inf)])
@@ -263,10 +297,6 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
         m_lb = np.full((t, K - 1), -np.inf)
         m_lb[diag_pos, :] = 1e-8                       # M_k,ii > 0: log det Q_k defined
         lbz[nX + nS:nX + nS + nM] = m_lb.ravel(order="F")
-    if formulation == "logchol":
-        s_lb = np.full((t, K), -np.inf)
-        s_lb[diag_pos, :] = np.log(floor)
-        lbz[nX:nX + nS] = s_lb.ravel(order="F")
     nL = n_lam * K
     lbz[nX + nS + nM:nX + nS + nM + nL] = 0.0          # lam >= 0
     if budget:
@@ -275,70 +305,91 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
         ubz[nX + nS + nM + nL:] = tau_hi
     parts = ca.Function("parts", [z, p], [control, information, reg], ["z", "p"],
                         ["control", "information", "regulariser"])
-    margins = ca.Function("margins", [z], [g_col_v, g_tgt_v], ["z"], ["collision", "target"])
 
-    def pack(lay: Layout) -> np.ndarray:
-        Xv = lay.x[1:].T
-        if formulation == "minors":
-            Sp = np.stack([[0.5 * (lay.S[k][i, j] + lay.S[k][j, i]) for i, j in tri] for k in range(1, K + 1)], 1)
-        else:
-            Ls = [_psd_factor(lay.S[k]) for k in range(1, K + 1)]
-            if formulation == "logchol":
-                for Lk in Ls:   # lifted to the floor (more sensing: the start stays safe)
-                    Lk[np.diag_indices(d)] = np.log(np.maximum(np.diag(Lk), floor))
-            Sp = np.stack([[Lk[i, j] for i, j in tri] for Lk in Ls], 1)
-        parts_ = [Xv.ravel(order="F"), Sp.ravel(order="F")]
-        if lift_q:
-            Mp = np.stack([[np.linalg.cholesky(0.5 * (lay.Q[k] + lay.Q[k].T))[i, j] for i, j in tri]
-                           for k in range(2, K + 1)], 1) if K > 1 else np.zeros((t, 0))
-            parts_.append(Mp.ravel(order="F"))
-        parts_.append(anchor(lay))
-        if budget:
-            parts_.append(np.asarray(lay.tau, float).T.ravel(order="F"))
-        return np.concatenate(parts_)
-
-    def anchor(lay: Layout) -> np.ndarray:
-        return np.concatenate([lay.lam[:, j, :nf[j]] for j in range(J)], axis=1).T.ravel(order="F")
-
-    def unpack(zv: np.ndarray) -> Layout:
-        zv = np.asarray(zv, float).ravel()
-        x = np.vstack([D.x0[None], zv[:nX].reshape(K, d)])
-        Sp = zv[nX:nX + nS].reshape(K, t)
-        S = np.zeros((K + 1, d, d))
-        for k in range(1, K + 1):
-            M = np.zeros((d, d))
-            for p, (i, j) in enumerate(tri):
-                M[i, j] = Sp[k - 1, p]
-            if formulation == "logchol":
-                M[np.diag_indices(d)] = np.exp(np.diag(M))
+    def _packing(formulation: str, floor: float) -> tuple[Callable, Callable]:
+        """pack (Layout -> z values) and unpack (z values -> Layout) of ``formulation``."""
+        def pack(lay: Layout) -> np.ndarray:
+            Xv = lay.x[1:].T
             if formulation == "minors":
-                Ssym = M + M.T - np.diag(np.diag(M))
-                w, V = np.linalg.eigh(Ssym)
-                S[k] = (V * np.maximum(w, 0.0)) @ V.T      # bound_relax_factor allows ~1e-8 negative minors
+                Sp = np.stack([[0.5 * (lay.S[k][i, j] + lay.S[k][j, i]) for i, j in tri]
+                               for k in range(1, K + 1)], 1)
             else:
-                S[k] = M @ M.T
-        Qm = np.zeros((K + 1, d, d))
-        Qm[1] = D.Q1
-        if lift_q and K > 1:
-            Mp = zv[nX + nS:nX + nS + nM].reshape(K - 1, t)
-            for k in range(2, K + 1):
+                Ls = [_psd_factor(lay.S[k]) for k in range(1, K + 1)]
+                if formulation == "logchol":
+                    for Lk in Ls:   # lifted to the floor (more sensing: the start stays safe)
+                        Lk[np.diag_indices(d)] = np.log(np.maximum(np.diag(Lk), floor))
+                Sp = np.stack([[Lk[i, j] for i, j in tri] for Lk in Ls], 1)
+            parts_ = [Xv.ravel(order="F"), Sp.ravel(order="F")]
+            if lift_q:
+                Mp = np.stack([[np.linalg.cholesky(0.5 * (lay.Q[k] + lay.Q[k].T))[i, j] for i, j in tri]
+                               for k in range(2, K + 1)], 1) if K > 1 else np.zeros((t, 0))
+                parts_.append(Mp.ravel(order="F"))
+            parts_.append(lam_values(lay))
+            if budget:
+                parts_.append(np.asarray(lay.tau, float).T.ravel(order="F"))
+            return np.concatenate(parts_)
+
+        def unpack(zv: np.ndarray) -> Layout:
+            zv = np.asarray(zv, float).ravel()
+            x = np.vstack([D.x0[None], zv[:nX].reshape(K, d)])
+            Sp = zv[nX:nX + nS].reshape(K, t)
+            S = np.zeros((K + 1, d, d))
+            for k in range(1, K + 1):
                 M = np.zeros((d, d))
                 for p, (i, j) in enumerate(tri):
-                    M[i, j] = Mp[k - 2, p]
-                Qm[k] = M @ M.T
-        lam_c = zv[nX + nS + nM:nX + nS + nM + n_lam * K].reshape(K, n_lam)
-        lam = np.zeros((K, J, F))
-        for j in range(J):
-            lam[:, j, :nf[j]] = lam_c[:, offs[j]:offs[j + 1]]
-        tau = zv[nX + nS + nM + n_lam * K:].reshape(K, J).copy() if budget else None
-        lay = Layout(x, Qm, S, lam, tau)
-        if not lift_q:
-            lay = model.tighten(lay)
-        return lay
+                    M[i, j] = Sp[k - 1, p]
+                if formulation == "logchol":
+                    M[np.diag_indices(d)] = np.exp(np.diag(M))
+                if formulation == "minors":
+                    Ssym = M + M.T - np.diag(np.diag(M))
+                    w, V = np.linalg.eigh(Ssym)
+                    S[k] = (V * np.maximum(w, 0.0)) @ V.T      # bound_relax_factor allows ~1e-8 negative minors
+                else:
+                    S[k] = M @ M.T
+            Qm = np.zeros((K + 1, d, d))
+            Qm[1] = D.Q1
+            if lift_q and K > 1:
+                Mp = zv[nX + nS:nX + nS + nM].reshape(K - 1, t)
+                for k in range(2, K + 1):
+                    M = np.zeros((d, d))
+                    for p, (i, j) in enumerate(tri):
+                        M[i, j] = Mp[k - 2, p]
+                    Qm[k] = M @ M.T
+            lam_c = zv[nX + nS + nM:nX + nS + nM + n_lam * K].reshape(K, n_lam)
+            lam = np.zeros((K, J, F))
+            for j in range(J):
+                lam[:, j, :nf[j]] = lam_c[:, offs[j]:offs[j + 1]]
+            tau = zv[nX + nS + nM + n_lam * K:].reshape(K, J).copy() if budget else None
+            lay = Layout(x, Qm, S, lam, tau)
+            if not lift_q:
+                lay = model.tighten(lay)
+            return lay
 
-    return NLPProblem(formulation, z, p, control + D.alpha * information + reg, g, lbz, ubz, lbg, ubg, parts,
-                      margins, pack, unpack, anchor, n_col,
-                      info={"n_variables": int(z.shape[0]), "n_constraints": int(g.shape[0]),
-                            "n_kalman": n_kal, "n_psd": n_psd, "n_target": n_tgt, "n_budget": len(g_bud),
-                            "sensing_offset": nX,
-                            "tri": tri, "d": d, "K": K, "J": J})
+        return pack, unpack
+
+    def view(formulation: str, floor: float) -> NLPProblem:
+        """The NLP as ``formulation`` (one of the pair when ``pair``) sees it."""
+        lb = lbz.copy()
+        if formulation == "logchol":
+            s_lb = np.full((t, K), -np.inf)
+            s_lb[diag_pos, :] = np.log(floor)
+            lb[nX:nX + nS] = s_lb.ravel(order="F")
+        pack, unpack = _packing(formulation, floor)
+        on = ca.SX(1.0 if formulation == "logchol" else 0.0)
+        margins = ca.Function("margins", [z], ca.substitute([g_col_v, g_tgt_v], [switch], [on]), ["z"],
+                              ["collision", "target"])
+
+        def anchor(lay: Layout, alpha: float | None = None) -> np.ndarray:
+            return np.concatenate([lam_values(lay), [D.alpha if alpha is None else float(alpha),
+                                                     1.0 if formulation == "logchol" else 0.0]])
+
+        return NLPProblem(formulation, z, p, f, g, lb, ubz, lbg, ubg, parts, margins, pack, unpack, anchor, n_col,
+                          info={"n_variables": int(z.shape[0]), "n_constraints": int(g.shape[0]),
+                                "n_kalman": n_kal, "n_psd": n_psd, "n_target": n_tgt, "n_budget": len(g_bud),
+                                "sensing_offset": nX, "tri": tri, "d": d, "K": K, "J": J, "floor": floor},
+                          _view=view if pair else None)
+
+    def lam_values(lay: Layout) -> np.ndarray:
+        return np.concatenate([lay.lam[:, j, :nf[j]] for j in range(J)], axis=1).T.ravel(order="F")
+
+    return view(formulation, floor)

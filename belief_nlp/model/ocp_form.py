@@ -150,10 +150,18 @@ def stage_labels(nlp: NLPProblem) -> np.ndarray:
     return lab
 
 
-def additive_terms(expr: ca.SX) -> list[ca.SX]:
+def additive_terms(expr: ca.SX, z: ca.SX | None = None) -> list[ca.SX]:
     """Scalar ``expr`` as a list of terms whose sum it is: the tree of sums,
     differences, negations and products with a constant is opened; every
-    other node is one term (with its sign and constant factor)."""
+    other node is one term (with its sign and constant factor). With ``z``,
+    a product with a factor free of ``z`` (a parameter such as alpha) is
+    opened too, the factor kept on each term."""
+
+    def factor(e: ca.SX):
+        if e.is_constant():
+            return float(e)
+        return e if z is not None and not ca.depends_on(e, z) else None
+
     out: list[ca.SX] = []
     stack = [(expr, 1.0)]
     while stack:
@@ -164,10 +172,10 @@ def additive_terms(expr: ca.SX) -> list[ca.SX]:
             stack += [(e.dep(0), c), (e.dep(1), -c)]
         elif e.is_op(ca.OP_NEG):
             stack.append((e.dep(0), -c))
-        elif e.is_op(ca.OP_MUL) and e.dep(0).is_constant():
-            stack.append((e.dep(1), c * float(e.dep(0))))
-        elif e.is_op(ca.OP_MUL) and e.dep(1).is_constant():
-            stack.append((e.dep(0), c * float(e.dep(1))))
+        elif e.is_op(ca.OP_MUL) and factor(e.dep(0)) is not None:
+            stack.append((e.dep(1), c * factor(e.dep(0))))
+        elif e.is_op(ca.OP_MUL) and factor(e.dep(1)) is not None:
+            stack.append((e.dep(0), c * factor(e.dep(1))))
         elif e.is_constant() and float(e) == 0.0:
             continue
         else:
@@ -188,7 +196,7 @@ def build_ocp(nlp: NLPProblem) -> OCPProblem:
     n = int(z.shape[0])
     K = int(nlp.info["K"])
     lab = stage_labels(nlp)
-    terms = additive_terms(nlp.f)
+    terms = additive_terms(nlp.f, z)
     T = ca.vertcat(*terms) if terms else ca.SX(0, 1)
     row_deps = _deps(nlp.g, z)
     term_deps = _deps(T, z)

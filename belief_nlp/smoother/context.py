@@ -11,7 +11,9 @@ method reports in the same terms (docs/architecture.md, "The contract").
 
 from __future__ import annotations
 
+import hashlib
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -25,6 +27,15 @@ from .result import IterationRecord
 from .warmstart import WarmStart, segment_certificates
 
 __all__ = ["Check", "Outcome", "SmoothingProblem"]
+
+
+def _digest(z: Layout) -> bytes:
+    """A digest of the point's arrays (what :meth:`SmoothingProblem.check` reads)."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in (z.x, z.Q, z.S, z.lam) + (() if z.tau is None else (z.tau,)):
+        a = np.ascontiguousarray(a)
+        h.update(str(a.shape).encode() + a.tobytes())
+    return h.digest()
 
 
 def _require_finite(z: Layout) -> None:
@@ -161,12 +172,13 @@ class SmoothingProblem:
         self.keep_iterates = keep_iterates
         self.callback = callback
         self.method = method
-        self.hazards = PolytopeSet.build(scenario.hazards)
+        self.hazards = PolytopeSet.cached(scenario.hazards)
         # the same hazards in the model's scaled units: the exact check runs there
         # (squared Mahalanobis distances are unit-free), no SI round trip per iterate
         s = model.data.sigma
-        self.hazards_scaled = PolytopeSet.build([(h.A, h.b / s) for h in scenario.hazards])
+        self.hazards_scaled = PolytopeSet.cached([(h.A, h.b / s) for h in scenario.hazards])
         self.policy = policy
+        self._checks: OrderedDict = OrderedDict()   # digest -> (Check, digest of its point) (see check)
         chk = self.check(model.tighten(model.from_path(warm.path, warm.lam)))
         self.start = chk.point
         self.cost0, ctrl0, info0 = model.cost(self.start)
@@ -191,6 +203,21 @@ class SmoothingProblem:
 
     # ------------------------------------------------------------ safety
     def check(self, z: Layout) -> Check:
+        """Certified safety of ``z`` (see :class:`Check`); :meth:`_check` on
+        a point with the same content as one checked before returns that
+        result (the check is a function of the point's arrays: the same
+        proof, not computed again -- a method's answer is checked by the
+        method, by auto and by the driver)."""
+        key = _digest(z)
+        hit, point_key = self._checks.get(key, (None, None))
+        if hit is None or _digest(hit.point) != point_key:      # (a result whose point was changed since: again)
+            hit = self._check(z)
+            self._checks[key] = (hit, _digest(hit.point))
+            while len(self._checks) > 8:
+                self._checks.popitem(last=False)
+        return hit
+
+    def _check(self, z: Layout) -> Check:
         """Certified safety of ``z`` (see :class:`Check`). The exact
         minimisation over s gives each pair's optimal certificate; where the
         point's own certificate does not prove the policy's margin, it is

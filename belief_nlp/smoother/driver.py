@@ -305,7 +305,9 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
 
     def build(k: int | None) -> WarmStart:
         if budget is None:
-            return warm_start(scenario, path, K=k, sensing=sensing)
+            # not verified here: the start is proven by the exact check and the
+            # path returned is verified (_finish), the warm start included
+            return warm_start(scenario, path, K=k, sensing=sensing, verify_start=False)
         n_pairs = (path.K if k is None else k) * J
         if budget.kind == "continuous":
             return _continuous_warm_start(scenario, path, k, sensing, budget, n_pairs)
@@ -383,6 +385,8 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
     lam_si = answer.lam / model.data.sigma
     if report is None:                    # the warm start: verified here (the candidates were above)
         report = verify(sc, path, certificates=lam_si, **_risk_args(model, answer))
+        if not report.safe:               # what warm_start() raises when it verifies (smooth defers it to here)
+            raise InfeasibleStartError(f"warm start failed verification: {report.summary()}")
     c, ctrl, info = model.cost(answer)
     iterates = None
     if problem.keep_iterates:

@@ -72,8 +72,9 @@ class WarmStart:
     lam : ndarray, shape (K, J, F)
         Certificates of Theorem 1 in SI units (padded faces zero), hazards
         ordered as ``scenario.hazards``.
-    report : VerificationReport
-        Independent verification of ``path``.
+    report : VerificationReport or None
+        Independent verification of ``path`` (None when built with
+        ``verify_start=False``).
     added_sensing : int, optional
         Number of covariance halvings applied to make transitions clear.
     allocation : {"length", "feasibility"}, optional
@@ -83,7 +84,7 @@ class WarmStart:
 
     path: BeliefPath
     lam: np.ndarray
-    report: VerificationReport
+    report: VerificationReport | None
     added_sensing: int = 0
     allocation: str = "length"      # how steps were allotted to edges: "length" or "feasibility"
 
@@ -114,7 +115,7 @@ def allocate_steps(scenario: Scenario, x: np.ndarray, K: int, hazards: PolytopeS
     P0). Extra steps go, one at a time, to the edge with the longest sub-step
     among those whose finer split stays possible (open space gets the steps,
     tight passages keep long steps)."""
-    hazards = hazards or PolytopeSet.build(scenario.hazards)
+    hazards = hazards or PolytopeSet.cached(scenario.hazards)
     x = np.asarray(x, float)
     E = x.shape[0] - 1
     W = scenario.W
@@ -194,7 +195,7 @@ def _on_segment(p, a, b) -> bool:
 
 
 def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
-               sensing: str = "minimal", chi2: float | None = None) -> WarmStart:
+               sensing: str = "minimal", chi2: float | None = None, *, verify_start: bool = True) -> WarmStart:
     """A feasible initial point of the smoother built from ``path``.
 
     The means are mapped onto K steps (the polyline is kept), the
@@ -226,6 +227,11 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
         scenario's); the target keeps the scenario's own level. A risk
         budget's warm start uses its uniform level here
         (:meth:`belief_nlp.allocation.RiskBudget.warm_level`).
+    verify_start : bool, optional
+        Verify the warm start independently (default). False leaves
+        ``report`` None: :func:`belief_nlp.smooth` does so, because its
+        exact check proves the start safe and it verifies the path it
+        returns, the warm start included (one verification less per call).
 
     Returns
     -------
@@ -241,20 +247,20 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
         For bad arguments (a K below the number of edges, an unknown ``sensing``).
     """
     try:
-        return _warm_start(scenario, path, K, sensing, None, chi2)
+        return _warm_start(scenario, path, K, sensing, None, chi2, verify_start)
     except InfeasibleStartError:
         if K is None or not isinstance(path, BeliefPath) or K <= path.K:
             raise
         steps = allocate_steps(scenario, path.x, K, chi2=chi2)
         if steps is None:
             raise
-        ws = _warm_start(scenario, path, K, sensing, steps, chi2)
+        ws = _warm_start(scenario, path, K, sensing, steps, chi2, verify_start)
         ws.allocation = "feasibility"
         return ws
 
 
 def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str,
-                steps: np.ndarray | None, chi2_collision: float | None = None) -> WarmStart:
+                steps: np.ndarray | None, chi2_collision: float | None = None, check: bool = True) -> WarmStart:
     """:func:`warm_start` with the means cut by ``steps`` per edge (None: by length)."""
     if not isinstance(path, BeliefPath):
         raise ValidationError("path", f"must be a BeliefPath, got {type(path).__name__}")
@@ -266,16 +272,32 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
         raise ValidationError("path.x", "the path must start at the scenario's start mean x0")
     x = resample_means(path.x, K) if steps is None else _split(np.asarray(path.x, float), steps)
     K_ = x.shape[0] - 1
-    target_P = _target_posteriors(path, x)
+    target_P = _target_posteriors(path, x) if sensing == "path" else None     # "minimal" never reads it
     chi2 = scenario.chi2                                     # the target's level
     chi2_c = chi2 if chi2_collision is None else float(chi2_collision)
-    hazards = PolytopeSet.build(scenario.hazards)
+    hazards = PolytopeSet.cached(scenario.hazards)
     thr = chi2_c * (1 + _START_MARGIN)
     W = scenario.W
     P = np.empty((K_ + 1, scenario.dim, scenario.dim))
     P[0] = scenario.P0
     halvings = 0
-    for k in range(1, K_ + 1):
+
+    def step(k: int) -> None:            # the posterior after transition k, from P[k - 1]
+        P_prior = P[k - 1] + W
+        P[k] = belief.matrix_minimum(P_prior, target_P[k]) if sensing == "path" else P_prior
+
+    k = 1
+    while k <= K_:
+        # every transition from k on in one batch, with the posteriors the loop
+        # below gives when none needs more sensing (the common case); the loop
+        # runs from the first transition that is not clear
+        for i in range(k, K_ + 1):
+            step(i)
+        tm = transition_minimiser(x[k - 1:-1], P[k - 1:-1], x[k:], W, hazards, threshold=thr)
+        not_clear = np.flatnonzero(np.any(tm.dist2 < thr, axis=1))
+        if not_clear.size == 0:
+            break
+        k += int(not_clear[0])
         while True:
             tm = transition_minimiser(x[k - 1], P[k - 1], x[k], W, hazards, threshold=thr)
             bad = np.nonzero(tm.dist2[0] < thr)[0]
@@ -292,8 +314,8 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
                     transition=k, obstacle=scenario.hazards[j].name)
             P[k - 1] = 0.5 * P[k - 1]
             halvings += 1
-        P_prior = P[k - 1] + W
-        P[k] = belief.matrix_minimum(P_prior, target_P[k]) if sensing == "path" else P_prior
+        step(k)
+        k += 1
     # final posterior inside the target
     T = scenario.target
     if not T.contains(x[-1]):
@@ -315,8 +337,8 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
     ws_path = BeliefPath.from_sensing(x, scenario.P0, S, W=W, noise="per_step",
                                       meta={**path.meta, "warm_start_from": path.meta.get("source", "path")})
     lam = certificates(scenario, ws_path, hazards, chi2=chi2_c)
-    report = verify(scenario, ws_path, levels=chi2_c)
-    if not report.safe:
+    report = verify(scenario, ws_path, levels=chi2_c) if check else None
+    if report is not None and not report.safe:
         raise InfeasibleStartError(f"warm start failed verification: {report.summary()}")
     return WarmStart(ws_path, lam, report, halvings)
 
@@ -361,7 +383,7 @@ def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | No
     chi2 * margin). Strictly interior certificates keep the interior-point
     solver away from the boundary of every cone at once.
     """
-    hazards = hazards or PolytopeSet.build(scenario.hazards)
+    hazards = hazards or PolytopeSet.cached(scenario.hazards)
     chi2 = scenario.chi2 if chi2 is None else chi2
     return segment_certificates(path.x[:-1], path.P[:-1], path.x[1:], path.transition_noise, hazards, chi2, margin)
 
