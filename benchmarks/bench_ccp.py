@@ -19,7 +19,7 @@ smooths the same warm start (a WarmStart at K). Per case:
 Writes benchmarks/results/ccp.json (machine, load, per-case records, tables)
 and prints the Markdown tables.
 
-    python benchmarks/bench_ccp.py [--seeds 10] [--seeds40 5] [--workers 2] [--check]
+    python benchmarks/bench_ccp.py [--seeds 10] [--seeds40 5] [--workers 2] [--check] [--methods M,...]
 """
 
 from __future__ import annotations
@@ -35,6 +35,9 @@ import numpy as np
 from _record import run_and_record
 
 OUT = Path(__file__).resolve().parent / "results" / "ccp.json"
+METHODS = {"ccp": ("ccp", {"max_iter": 100, "tol": 1e-5}),
+           "ccp-plain": ("ccp", {"max_iter": 100, "tol": 1e-5, "accelerate": False}),
+           "ipopt": ("ipopt", {}), "auto": ("auto", {"ccp_polish": 0}), "auto+polish": ("auto", {"ccp_polish": 10})}
 LIBRARY = {"equilibrate_enable": False, "chordal_decomposition_enable": False, "presolve_enable": False}
 SCS_CHECK = {"eps_abs": 1e-7, "eps_rel": 1e-7, "max_iters": 200_000}
 
@@ -75,10 +78,9 @@ def run_case(case: dict) -> dict:
     for method in ("ccp", "ipopt"):            # builds (CVXPY compile, NLP) are cached: time none of them
         bn.smooth(sc, ws, method=method, alpha=a, max_iter=1)
     runs = {}
-    for name, method, opts in (("ccp", "ccp", {"max_iter": 100, "tol": 1e-5}),
-                               ("ccp-plain", "ccp", {"max_iter": 100, "tol": 1e-5, "accelerate": False}),
-                               ("ipopt", "ipopt", {}),
-                               ("auto", "auto", {}), ("auto+polish", "auto", {"ccp_polish": 10})):
+    for name, (method, opts) in METHODS.items():
+        if name not in case.get("methods", METHODS):
+            continue
         t = time.perf_counter()
         r = bn.smooth(sc, ws, method=method, alpha=a, **opts)
         wall = time.perf_counter() - t
@@ -117,7 +119,8 @@ def summarise(records: list[dict]) -> dict:
     for K in sorted({r["K"] for r in ok}):
         rows = [r for r in ok if r["K"] == K]
         best = {id(r): min(v["cost"] for v in r["runs"].values() if v["safe"]) for r in rows}
-        for m in ("ccp", "ccp-plain", "ipopt", "auto", "auto+polish"):
+        present = [m for m in METHODS if all(m in r["runs"] for r in rows)]
+        for m in present:
             v = [r["runs"][m] for r in rows]
             table[f"K{K}/{m}"] = {
                 "cases": len(v),
@@ -129,21 +132,23 @@ def summarise(records: list[dict]) -> dict:
                 "cost_over_best_max": float(np.max([x["cost"] / best[id(r)] for x, r in zip(v, rows)])),
                 "statuses": sorted({x["status"] for x in v}),
             }
-        ratio = [r["runs"]["ccp"]["wall"] / r["runs"]["ipopt"]["wall"] for r in rows]
-        table[f"K{K}/ccp_over_ipopt_wall_median"] = float(np.median(ratio))
-        table[f"K{K}/ccp_over_plain_wall_median"] = float(np.median(
-            [r["runs"]["ccp"]["wall"] / r["runs"]["ccp-plain"]["wall"] for r in rows]))
-        table[f"K{K}/ccp_steps_extrapolated"] = int(sum(r["runs"]["ccp"]["extrapolated"] for r in rows))
-        pol = [(r["runs"]["auto+polish"]["cost"], r["runs"]["auto"]["cost"], r["runs"]["auto+polish"]["wall"],
-                r["runs"]["auto"]["wall"]) for r in rows]
-        table[f"K{K}/polish"] = {
-            "lower_by_more_than_0.1%": sum(p < c * (1 - 1e-3) for p, c, _, _ in pol),
-            "max_decrease_%": float(max(100 * (c - p) / c for p, c, _, _ in pol)),
-            "median_cost_ratio": float(np.median([p / c for p, c, _, _ in pol])),
-            "median_wall_ratio": float(np.median([pw / w for _, _, pw, w in pol])),
-        }
-        answered = [s for r in rows for s in r["runs"]["ccp"]["answered_by"]]
-        table[f"K{K}/ccp_steps_answered_by"] = {k: answered.count(k) for k in sorted(set(map(str, answered)))}
+        if {"ccp", "ipopt", "ccp-plain"} <= set(present):
+            ratio = [r["runs"]["ccp"]["wall"] / r["runs"]["ipopt"]["wall"] for r in rows]
+            table[f"K{K}/ccp_over_ipopt_wall_median"] = float(np.median(ratio))
+            table[f"K{K}/ccp_over_plain_wall_median"] = float(np.median(
+                [r["runs"]["ccp"]["wall"] / r["runs"]["ccp-plain"]["wall"] for r in rows]))
+            table[f"K{K}/ccp_steps_extrapolated"] = int(sum(r["runs"]["ccp"]["extrapolated"] for r in rows))
+            answered = [s for r in rows for s in r["runs"]["ccp"]["answered_by"]]
+            table[f"K{K}/ccp_steps_answered_by"] = {k: answered.count(k) for k in sorted(set(map(str, answered)))}
+        if {"auto", "auto+polish"} <= set(present):
+            pol = [(r["runs"]["auto+polish"]["cost"], r["runs"]["auto"]["cost"], r["runs"]["auto+polish"]["wall"],
+                    r["runs"]["auto"]["wall"]) for r in rows]
+            table[f"K{K}/polish"] = {
+                "lower_by_more_than_0.1%": sum(p < c * (1 - 1e-3) for p, c, _, _ in pol),
+                "max_decrease_%": float(max(100 * (c - p) / c for p, c, _, _ in pol)),
+                "median_cost_ratio": float(np.median([p / c for p, c, _, _ in pol])),
+                "median_wall_ratio": float(np.median([pw / w for _, _, pw, w in pol])),
+            }
     checks = [c for r in ok for c in r.get("checks", [])]
     if checks:
         lib_ok = [c for c in checks if c["library"]["value"] is not None]
@@ -171,8 +176,14 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--check", action="store_true", help="also solve every step with other solvers/settings")
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--methods", default=",".join(METHODS),
+                    help=f"comma-separated subset of {', '.join(METHODS)} (e.g. auto,auto+polish)")
     a = ap.parse_args()
-    cases = [dict(kind=kind, seed=s, alpha=al, K=K, check=a.check)
+    methods = a.methods.split(",")
+    bad = sorted(set(methods) - set(METHODS))
+    if bad:
+        ap.error(f"--methods: unknown {bad}; choose from {list(METHODS)}")
+    cases = [dict(kind=kind, seed=s, alpha=al, K=K, check=a.check, methods=methods)
              for K, n in ((20, a.seeds), (40, a.seeds40)) for kind in ("paper-multi", "random-polygons")
              for s in range(n) for al in (0.1, 1.0)]
     run_and_record(run_case, cases, summarise, a, a.out, a.workers)
