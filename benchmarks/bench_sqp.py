@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_nlp_speed import _case, _run  # noqa: E402 - the same warm starts and per-run record
 
 import belief_nlp as bn  # noqa: E402
+from belief_nlp.methods.sqp import UNO, UNOPY  # noqa: E402
 from belief_nlp.methods.sqp_unopy import unopy_version  # noqa: E402
 
 HERE = Path(__file__).resolve().parent / "results"
@@ -70,6 +71,7 @@ def main() -> None:
            "settings": {"scenario": "paper-multi", "seeds": {"20": args.seeds[0], "40": args.seeds[1]},
                         "alpha": [0.1, 1.0], "nodes": 500, "noise": "per_step", "interface": args.interface,
                         "uno": unopy_version() if args.interface == "unopy" else "CasADi's 'uno' plug-in",
+                        "uno_options": (UNOPY if args.interface == "unopy" else UNO).defaults,
                         "sqp_time_limit": f"{args.cap}x IPOPT wall on the same case"},
            "cases": [], "summary": {}}
     t0 = time.perf_counter()

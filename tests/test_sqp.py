@@ -137,3 +137,14 @@ def test_unopy_status_texts_map_to_ours():
     for opt, sol in (("SUCCESS", "INFEASIBLE_STATIONARY_POINT"), ("SUCCESS", "FEASIBLE_SMALL_STEP"),
                      ("ALGORITHMIC_ERROR", "NOT_OPTIMAL"), ("EVALUATION_ERROR", "NOT_OPTIMAL")):
         assert map_status(return_status(opt, sol)) == "solver_failed", (opt, sol)
+
+
+def test_without_unopy_auto_falls_back_to_casadis_plugin(small_start, monkeypatch):
+    """interface="auto" runs CasADi's plug-in when unopy is not installed."""
+    from belief_nlp.methods import sqp
+
+    monkeypatch.setattr(sqp, "HAVE_UNOPY", False)
+    sc, ws = small_start
+    r = bn.smooth(sc, ws, method="sqp", alpha=1.0, max_iter=4)
+    assert "CasADi" in r.stats["interface"] and r.solver == "Uno"
+    assert r.status == "max_iter" and r.safe and "optimization_status" not in r.stats["attempts"][0]
