@@ -106,6 +106,17 @@ class NLPBackend:
         """The ``ca.nlpsol`` options dict around the plug-in's options."""
         return {self.plugin: opts}
 
+    def nlpsol(self, name: str, nlp: dict, options: dict) -> Any:
+        """The solver instance: CasADi's ``nlpsol`` plug-in by default; a
+        backend outside CasADi returns an object called the same way (keyword
+        arguments x0, p, lbx, ubx, lbg, ubg -> dict with "x", "f", "g"; a
+        ``stats()`` method) that drives ``options["iteration_callback"]``."""
+        return ca.nlpsol(name, self.plugin, nlp, options)
+
+    def attempt_stats(self, stats: dict) -> dict:
+        """Raw solver statistics kept in each attempt's record (none by default)."""
+        return {}
+
     def form(self, nlp: NLPProblem) -> Any:
         """The NLP form this solver is given (default: ``nlp`` itself; a
         structure-exploiting solver returns its stage-ordered form, which has
@@ -195,11 +206,10 @@ def _solver(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulat
     recorder = Recorder(nlp, keep=candidates, bar=None, stall=0)
     recorder.log_path = backend.log_file()
     try:
-        solver = ca.nlpsol(f"belief_nlp_{backend.plugin}", backend.plugin,
-                           {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
-                           {**backend.nlpsol_options(opts, recorder.log_path), **backend.structure_options(nlp),
-                            **given, "print_time": False,
-                            "iteration_callback": recorder, "error_on_fail": False, "show_eval_warnings": False})
+        solver = backend.nlpsol(f"belief_nlp_{backend.plugin}", {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
+                                {**backend.nlpsol_options(opts, recorder.log_path), **backend.structure_options(nlp),
+                                 **given, "print_time": False, "iteration_callback": recorder,
+                                 "error_on_fail": False, "show_eval_warnings": False})
     except RuntimeError as exc:  # bad option names or values
         raise ValidationError("solver_options",
                               f"{backend.name} refused them: {str(exc).splitlines()[-1][:200]}") from None
@@ -335,7 +345,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         stage.attempts.append({"formulation": formulation, "return_status": raw, "iter_count": n_it,
                                "restoration": backend.restoration(st, recorder.log_path, log_at),
                                "wall_time": time.perf_counter() - t_solve,
-                               "cpu_time": time.process_time() - c_solve})
+                               "cpu_time": time.process_time() - c_solve, **backend.attempt_stats(st)})
         stage.used += n_it
         n_attempts += 1
         status = backend.map_status(raw)
