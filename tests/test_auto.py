@@ -16,11 +16,15 @@ def small():
 
 def test_a_converged_ipopt_answer_is_taken(small):
     sc, path = small
-    res = bn.smooth(sc, path, method="auto", alpha=1.0)
+    res = bn.smooth(sc, path, method="auto", alpha=1.0, ccp_polish=0)
     assert res.method == "auto:ipopt" and res.success and res.safe
     ref = bn.smooth(sc, path, method="ipopt", alpha=1.0)
     assert res.cost == pytest.approx(ref.cost, rel=1e-9)
     assert res.stats["stages"] == ["ipopt"]
+    # the default polishes IPOPT's answer: never above it, the stages say so
+    polished = bn.smooth(sc, path, method="auto", alpha=1.0)
+    assert polished.method == "auto:ipopt+ccp" and polished.stats["stages"] == ["ipopt", "ccp polish"]
+    assert polished.cost <= ref.cost * (1 + 1e-12) and polished.safe
 
 
 def test_ccp_continues_when_ipopt_stops_early(small):
@@ -37,7 +41,7 @@ def test_ccp_continues_when_ipopt_stops_early(small):
 
 def test_polish_never_raises_the_cost(small):
     sc, path = small
-    plain = bn.smooth(sc, path, method="auto", alpha=1.0)
+    plain = bn.smooth(sc, path, method="auto", alpha=1.0, ccp_polish=0)
     polished = bn.smooth(sc, path, method="auto", alpha=1.0, ccp_polish=3)
     assert polished.cost <= plain.cost * (1 + 1e-12) and polished.safe
     assert polished.method in ("auto:ipopt+ccp", "auto:ipopt")

@@ -25,7 +25,7 @@ def add_parser(sub) -> None:
                     "(cost per iteration), with a risk budget OUT/smooth_risk.png (each transition's ellipses at "
                     "its own level and its allotted risk) and, with --gif, OUT/smoothing.gif. The default method, auto, runs "
                     "IPOPT on the exact NLP and falls back to CCP from the best safe point; the result "
-                    "says which answered (auto:ipopt or auto:ccp). The status (converged, "
+                    "says which ran (auto:ipopt+ccp, auto:ipopt or auto:ccp). The status (converged, "
                     "max_iter, time_limit, ...) is printed; solver failures exit with code 3.",
         epilog="Examples:\n  belief-nlp smooth paper-multi --path out/plan.json\n"
                "  belief-nlp smooth paper-multi --path out/plan.json --method ccp --max-iter 15\n"

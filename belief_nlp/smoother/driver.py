@@ -110,9 +110,9 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
     method : str, Method or callable, optional
         A name from :func:`available_methods` -- ``"auto"`` (the default,
         :data:`DEFAULT_METHOD`): IPOPT on the exact NLP, then CCP from the
-        best exactly safe point when IPOPT's answer is not taken
-        (``result.method`` says which answered: ``"auto:ipopt"`` or
-        ``"auto:ccp"``); ``"ccp"``: the convex-concave procedure, paper
+        best exactly safe point when IPOPT's answer is not taken, and a
+        short CCP polish after a converged one (``result.method`` says which
+        ran: ``"auto:ipopt+ccp"``, ``"auto:ipopt"`` or ``"auto:ccp"``); ``"ccp"``: the convex-concave procedure, paper
         section IV, every iterate feasible; ``"ipopt"``: the exact NLP by
         IPOPT alone; ``"sqp"``: a filter-SQP baseline -- a registered
         :class:`Method`, or a callable ``fn(problem, **options)`` returning

@@ -144,7 +144,7 @@ class SmoothResult:
     history : list of IterationRecord
         One record per iteration, index 0 the warm start.
     method : str
-        The method that answered (``"auto:ipopt"``, ``"ccp"``, ...).
+        The method that answered (``"auto:ipopt+ccp"``, ``"auto:ccp"``, ``"ccp"``, ...).
     solver : str
         The solver it used.
     alpha : float
