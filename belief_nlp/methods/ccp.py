@@ -42,15 +42,15 @@ from ..model.cache import MEMORY, DiskCache, problem_key
 from ..geometry.transitions import transition_minimiser
 from ..model.conic_form import ConicStep, conic_step
 from ..model.cvxpy_form import CompiledProblem, compile_problem, usable_solvers
-from .ccp_cascade import (SOLVER_DEFAULTS,  # noqa: F401  (re-exported)
-                           _check_solver, _check_solver_options, _checked, _solve, _StepAnswers,
+from .ccp_cascade import (SOLVER_DEFAULTS, _check_solver, _check_solver_options, _checked, _solve, _StepAnswers,
                           solver_cascade)
 from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Method, Option, register
 from ..smoother.result import STATUSES, IterationRecord
 
-__all__ = ["run", "compiled_step", "solver_cascade", "usable_solvers", "initial_rho"]
+__all__ = ["run", "compiled_step", "solver_cascade", "usable_solvers", "initial_rho", "SOLVER_DEFAULTS",
+           "active_pairs", "conic_step_of"]
 
 log = logging.getLogger("belief_nlp.smoother")
 
@@ -156,7 +156,8 @@ def _adapt_rho(model: BeliefModel, z: Layout, z_new: Layout, rho_s: np.ndarray, 
 
 def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | None = None,
         cache_dir: str | Path | bool | None = None, constraints: Callable | None = None,
-        hook: Callable | None = None, accelerate: bool = True, active_set: bool = True, _fail_at: int | None = None, _start: Layout | None = None) -> Outcome:
+        hook: Callable | None = None, accelerate: bool = True, active_set: bool = True,
+        _fail_at: int | None = None, _start: Layout | None = None) -> Outcome:
     """CCP from the problem's start (see the module doc and :data:`METHOD`).
 
     ``_start`` (for composite methods): continue from this exactly safe point
@@ -213,7 +214,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
             keep = active_pairs(model, base, problem.hazards_scaled)
             t_all, n_all = 0.0, 0
             for _ in range(ACTIVE_ROUNDS):
-                status, zv, t, n = conic.solve(base, rho_s_, rho_e_, keep, opts, time_left)
+                status, zv, t, n = conic.solve(base, rho_s_, rho_e_, keep, opts, problem.time_left())
                 t_all, n_all = t_all + t, n_all + n
                 if zv is None or not np.all(np.isfinite(zv)):
                     break

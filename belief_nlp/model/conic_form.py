@@ -27,6 +27,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from .cones import KINDS
 from .data import Layout
 from .doc import ConvexForm, StepLayout
 from .cvxpy_form import split_affine
@@ -132,12 +133,9 @@ class ConicStep:
         return status, z, float(sol.solve_time), int(sol.iterations)
 
 
-_KINDS = ("nonneg", "psd", "soc", "exp")
-
-
 def _cones(clarabel, kinds: np.ndarray, dims: np.ndarray) -> list:
-    """Clarabel's cone objects; runs of 1-row nonnegative cones become one
-    (Clarabel's work is per cone object)."""
+    """Clarabel's cone objects (kind codes: index in :data:`.cones.KINDS`);
+    runs of 1-row nonnegative cones become one (Clarabel's work is per cone object)."""
     out, run = [], 0
     for kind, dim in zip(kinds.tolist(), dims.tolist()):
         if kind == 0:
@@ -180,7 +178,7 @@ def conic_step(form: ConvexForm) -> ConicStep:
         b_r.append(srow), b_v.append(wt * split.e)
         o_r.append(srow[split.o_rows]), o_w.append(wt[split.o_rows])
         offs.append(split.o_expr)
-        kinds.append(np.full(fam.batch, _KINDS.index(fam.kind)))
+        kinds.append(np.full(fam.batch, KINDS.index(fam.kind)))
         dims.append(np.full(fam.batch, fam.dim))
         firsts.append(row0 + np.arange(fam.batch) * per_cone)
         counts.append(np.full(fam.batch, per_cone))
