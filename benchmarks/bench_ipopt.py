@@ -1,19 +1,36 @@
-"""IPOPT ablation (issue 10, item 2; docs/numerics.md, "IPOPT iterations").
+"""IPOPT ablations (docs/numerics.md, "IPOPT iterations" and "IPOPT iterations and K").
 
-paper-multi, K = 20, per-step IG-RRT* warm starts (N = 500), seeds and both
-alphas; each variant changes the defaults of ``method="ipopt"`` by options
-only. Records per case: IPOPT iterations (all stages), restoration
-iterations, solver CPU seconds, final cost, verified. Writes
-benchmarks/results/ipopt_ablation.json.
+paper-multi, per-step IG-RRT* warm starts (N = 500), seeds and alphas; each
+variant changes the defaults of ``method="ipopt"`` by options only. Records
+per case: IPOPT iterations (all stages), restoration iterations, solver CPU
+seconds, final cost, verified, and a summary of IPOPT's own iteration log per
+stage (the iteration at which mu reached its floor, iterations with an
+inertia correction, primal-infeasible iterations, median alpha_pr,
+backtracking and watchdog steps).
 
-    python benchmarks/bench_ipopt.py [--seeds 5] [--K 20]
+Two studies:
+
+* ``--study ablation`` (issue 10): K = 20, both alphas, the variants that
+  led to the floored log-Cholesky stage and the polish; writes
+  benchmarks/results/ipopt_ablation.json.
+* ``--study k`` (issue 21, item 3): the same warm starts at several K, the
+  defaults and the remedies tried against the growth of the iteration count
+  with K; K = 10 and 80 (defaults only, seed 0); and a diagnostic: IPOPT
+  restarted from its own converged answer (means and sensing), and from the
+  answer's means with minimal sensing. Writes
+  benchmarks/results/ipopt_k_scaling.json. Load averages are recorded per
+  case (2 shared cores: CPU seconds are upper bounds).
+
+    python benchmarks/bench_ipopt.py [--study ablation|k] [--seeds 5] [--K 20] [--out FILE]
 """
 
 from __future__ import annotations
 
 import argparse
+import glob
 import json
 import os
+import re
 import time
 from pathlib import Path
 
@@ -32,50 +49,195 @@ VARIANTS = {
     "log-Cholesky, monotone mu, + polish": dict(solver_options={"mu_strategy": "monotone", "mu_min": 1e-11}),
 }
 
+#: issue 21, item 3: each changes the defaults in one respect (solver options
+#: reach both stages unless the polish's own settings override them)
+K_VARIANTS = {
+    "defaults": dict(),
+    "floor 3e-3": dict(floor=3e-3),
+    "mu_min 1e-5": dict(solver_options={"mu_min": 1e-5}),
+    "probing mu oracle": dict(solver_options={"mu_oracle": "probing"}),
+    "mu-based bound multipliers, mu_init 1e-5": dict(solver_options={"bound_mult_init_method": "mu-based",
+                                                                     "mu_init": 1e-5}),
+    "bound_push = bound_frac = 1e-2": dict(solver_options={"bound_push": 1e-2, "bound_frac": 1e-2}),
+}
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--K", type=int, default=20)
-    args = ap.parse_args()
-    load = os.getloadavg()
+_ROW = re.compile(r"^\s*(\d+)(r?)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+?)([a-zA-Z]?)\s+(\d+)\s*$")
+
+
+def _log_sizes() -> dict:
+    return {f: os.path.getsize(f) for f in glob.glob(os.path.join(ipopt._LOG_DIR[0], "*.log"))} \
+        if ipopt._LOG_DIR else {}
+
+
+def _new_log_text(before: dict) -> str:
+    """What IPOPT wrote to its log files (file_print_level 5) since ``before``."""
+    out = ""
+    for f, size in sorted(_log_sizes().items(), key=lambda kv: os.path.getmtime(kv[0])):
+        if size != before.get(f, 0):
+            with open(f) as fh:
+                fh.seek(before.get(f, 0))
+                out += fh.read()
+    return out
+
+
+def log_summary(text: str) -> list[dict]:
+    """Per IPOPT solve in ``text``: where its iterations went (iteration table columns)."""
+    solves: list[list] = []
+    for line in text.splitlines():
+        if line.startswith("This is Ipopt"):
+            solves.append([])
+            continue
+        m = _ROW.match(line)
+        if m and solves:
+            it, resto, inf_pr, lg_mu, lg_rg, a_pr, kind, ls = m.groups()
+            solves[-1].append((int(it), bool(resto), float(inf_pr), float(lg_mu), lg_rg != "-", float(a_pr), kind,
+                               int(ls)))
+    out = []
+    for rows in solves:
+        r = rows[1:]                                   # iteration 0 is the start
+        if not r:
+            continue
+        out.append({"iterations": len(r),
+                    "mu_floor_at": next((x[0] for x in r if x[3] <= min(y[3] for y in r) + 0.05), None),
+                    "regularised": sum(x[4] for x in r),
+                    "infeasible_gt_1e-3": sum(x[2] > 1e-3 for x in r),
+                    "median_alpha_pr": float(np.median([x[5] for x in r])),
+                    "backtracked": sum(x[7] > 1 for x in r), "watchdog": sum(x[6] == "w" for x in r),
+                    "restoration": sum(x[1] for x in r)})
+    return out
+
+
+def _smooth(sc, start, alpha: float, **kw) -> dict:
+    load = os.getloadavg()[0]
+    before = _log_sizes()
+    r = bn.smooth(sc, start, method="ipopt", alpha=alpha, **kw)
+    att = r.stats.get("attempts", [])
+    return {"status": r.status, "cost": r.cost, "iterations": int(r.stats.get("iter_count", 0)),
+            "stages": [[a["formulation"], a["return_status"], a["iter_count"]] for a in att],
+            "restoration": int(sum(a["restoration"] or 0 for a in att)),
+            "cpu_s": float(sum(a["cpu_time"] for a in att)),
+            "verified": bool(r.path is not None and bn.verify(sc, r.path).safe),
+            "polish": r.stats.get("polish_status", ""), "log": log_summary(_new_log_text(before)),
+            "loadavg": load, "path": r.path}
+
+
+def _summarise(rows: list[dict]) -> dict:
+    its = [x["iterations"] for x in rows]
+    return {"median_iterations": float(np.median(its)), "max_iterations": int(max(its)),
+            "median_cpu_s": float(np.median([x["cpu_s"] for x in rows])),
+            "converged": sum(x["status"] == "converged" for x in rows),
+            "verified": sum(bool(x["verified"]) for x in rows), "cases": len(rows),
+            "median_loadavg": float(np.median([x["loadavg"] for x in rows]))}
+
+
+def ablation(args) -> dict:
     sc = bn.load_scenario("paper-multi")
     plans = {s: bn.plan(sc, n_nodes=500, seed=s, noise="per_step").path for s in range(args.seeds)}
-    out = {"machine": {"cpus": os.cpu_count(), "loadavg_at_start": load}, "settings": vars(args), "variants": []}
+    out = {"machine": {"cpus": os.cpu_count(), "loadavg_at_start": os.getloadavg()}, "settings": vars(args),
+           "variants": []}
     for name, kw in VARIANTS.items():
         ipopt.clear_cache()
         rows = []
         for s, path in plans.items():
             for alpha in (0.1, 1.0):
-                r = bn.smooth(sc, path, method="ipopt", K=args.K, alpha=alpha, **kw)
-                att = r.stats.get("attempts", [])
-                rows.append({"seed": s, "alpha": alpha, "status": r.status, "cost": r.cost,
-                             "iterations": int(r.stats.get("iter_count", 0)),
-                             "restoration": int(sum(a["restoration"] for a in att)),
-                             "cpu_s": float(sum(a["cpu_time"] for a in att)), "verified": r.safe,
-                             "polish": r.stats.get("polish_status", "")})
-        its = [x["iterations"] for x in rows]
-        out["variants"].append({"name": name, "options": kw, "median_iterations": float(np.median(its)),
-                                "max_iterations": int(max(its)),
-                                "median_cpu_s": float(np.median([x["cpu_s"] for x in rows])),
-                                "converged": sum(x["status"] == "converged" for x in rows),
-                                "verified": sum(bool(x["verified"]) for x in rows), "cases": len(rows), "rows": rows})
+                rec = _smooth(sc, bn.warm_start(sc, path, K=args.K[0]), alpha, **kw)
+                rec.pop("path")
+                rows.append({"seed": s, "alpha": alpha, **rec})
+        out["variants"].append({"name": name, "options": kw, **_summarise(rows), "rows": rows})
         v = out["variants"][-1]
         print(f"{name}: median {v['median_iterations']} (max {v['max_iterations']}) iterations, "
               f"{v['median_cpu_s']:.2f} s CPU, {v['converged']}/{v['cases']} converged, "
-              f"{v['verified']}/{v['cases']} verified; costs {[round(x['cost'], 4) for x in rows]}", flush=True)
-    # cost relative to the best of all variants per case
-    best = {}
-    for v in out["variants"]:
+              f"{v['verified']}/{v['cases']} verified", flush=True)
+    _cost_ratios(out["variants"], ("seed", "alpha"))
+    return out
+
+
+def _cost_ratios(variants: list[dict], key: tuple) -> None:
+    """Each variant's cost relative to the best verified cost of all variants per case."""
+    best: dict = {}
+    for v in variants:
         for x in v["rows"]:
-            key = (x["seed"], x["alpha"])
-            best[key] = min(best.get(key, np.inf), x["cost"])
-    for v in out["variants"]:
-        v["max_cost_ratio_to_best"] = float(max(x["cost"] / best[(x["seed"], x["alpha"])] for x in v["rows"]))
+            if x["verified"]:
+                k = tuple(x[c] for c in key)
+                best[k] = min(best.get(k, np.inf), x["cost"])
+    for v in variants:
+        ratios = [x["cost"] / best[tuple(x[c] for c in key)] if x["verified"] else np.inf for x in v["rows"]]
+        v["median_cost_ratio_to_best"] = float(np.median(ratios))
+        v["max_cost_ratio_to_best"] = float(max(ratios))
+
+
+def k_study(args) -> dict:
+    sc = bn.load_scenario("paper-multi")
+    plans = {s: bn.plan(sc, n_nodes=500, seed=s, noise="per_step").path for s in range(args.seeds)}
+    alphas = (1.0, 0.1)
+    out = {"machine": {"cpus": os.cpu_count(), "loadavg_at_start": os.getloadavg()}, "settings": vars(args),
+           "variants": [], "k_scaling": [], "restart_from_answer": []}
+    for name, kw in K_VARIANTS.items():
+        ipopt.clear_cache()
+        for K in args.K:
+            rows = []
+            for s, path in plans.items():
+                ws = bn.warm_start(sc, path, K=K)
+                for alpha in alphas:
+                    rec = _smooth(sc, ws, alpha, **kw)
+                    answer = rec.pop("path")
+                    rows.append({"seed": s, "alpha": alpha, "K": K, "start_information": float(ws.path.information),
+                                 **rec})
+                    if name == "defaults" and alpha == 1.0 and answer is not None:
+                        out["restart_from_answer"].append(_restarts(sc, answer, K, s, rec))
+            out["variants"].append({"name": name, "K": K, "options": kw, **_summarise(rows), "rows": rows})
+            v = out["variants"][-1]
+            print(f"{name}, K = {K}: median {v['median_iterations']} (max {v['max_iterations']}) iterations, "
+                  f"{v['converged']}/{v['cases']} converged, {v['verified']}/{v['cases']} verified, "
+                  f"load {v['median_loadavg']:.1f}", flush=True)
+    for K in args.K:
+        _cost_ratios([v for v in out["variants"] if v["K"] == K], ("seed", "alpha"))
+    ipopt.clear_cache()
+    for K in args.extra_K:                 # the growth itself: defaults, seed 0
+        ws = bn.warm_start(sc, plans[0], K=K)
+        for alpha in alphas:
+            rec = _smooth(sc, ws, alpha)
+            rec.pop("path")
+            out["k_scaling"].append({"seed": 0, "alpha": alpha, "K": K, "start_information": float(ws.path.information),
+                                     **rec})
+            print(f"defaults, K = {K}, alpha {alpha}: {rec['iterations']} iterations ({rec['stages']}), "
+                  f"cost {rec['cost']:.5f}, verified {rec['verified']}, load {rec['loadavg']:.1f}", flush=True)
+    return out
+
+
+def _restarts(sc, answer, K: int, seed: int, first: dict) -> dict:
+    """IPOPT from its own answer (means and sensing: ``sensing="path"``) and
+    from the answer's means with minimal sensing."""
+    rec = {"seed": seed, "K": K, "alpha": 1.0, "first_iterations": first["iterations"], "first_cost": first["cost"]}
+    for mode in ("path", "minimal"):
+        again = _smooth(sc, bn.warm_start(sc, answer, K=K, sensing=mode), 1.0)
+        again.pop("path")
+        rec[mode] = again
+    print(f"  restart K = {K}, seed {seed}: first {first['iterations']}; from the answer "
+          f"{rec['path']['stages']}; from its means, minimal sensing {rec['minimal']['stages']}", flush=True)
+    return rec
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--study", choices=("ablation", "k"), default="ablation")
+    ap.add_argument("--seeds", type=int, default=None, help="seeds 0..n-1 (ablation: 5, k: 3)")
+    ap.add_argument("--K", type=int, nargs="+", default=None, help="ablation: 20; k: 20 40")
+    ap.add_argument("--extra-K", type=int, nargs="*", default=[10, 80],
+                    help="k study: further K for the defaults, seed 0 only")
+    ap.add_argument("--out", type=Path, default=None, help="the record (default: benchmarks/results/<study>.json)")
+    args = ap.parse_args()
+    if args.study == "ablation":
+        args.seeds, args.K = args.seeds or 5, args.K or [20]
+        out, name = ablation(args), "ipopt_ablation.json"
+    else:
+        args.seeds, args.K = args.seeds or 3, args.K or [20, 40]
+        out, name = k_study(args), "ipopt_k_scaling.json"
     out["machine"]["loadavg_at_end"] = os.getloadavg()
     out["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
-    HERE.mkdir(exist_ok=True)
-    (HERE / "ipopt_ablation.json").write_text(json.dumps(out, indent=1))
+    path = args.out or HERE / name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=1, default=lambda o: str(o) if isinstance(o, Path) else float(o)))
 
 
 if __name__ == "__main__":
