@@ -168,7 +168,7 @@ class UnopySolver:
         x = x[:self.nx]      # Uno's reformulation appends slacks after the NLP's variables
         self._f(x, self._fval)
         self._g(x, self._gval)
-        keep = self.recorder.eval([ca.DM(np.array(x[:self.nx], dtype=float)), ca.DM(float(self._fval[0])),
+        keep = self.recorder.eval([ca.DM(np.array(x, dtype=float)), ca.DM(float(self._fval[0])),
                                    ca.DM(self._gval.copy())])
         self._stop = self._stop or bool(keep[0])
 

@@ -30,7 +30,7 @@ import scipy.sparse as sp
 from .cones import KINDS
 from .data import Layout
 from .doc import ConvexForm, StepLayout
-from .cvxpy_form import split_affine
+from .cvxpy_form import split_affine, split_objective
 
 __all__ = ["ConicStep", "conic_step"]
 
@@ -153,8 +153,6 @@ def _cones(clarabel, kinds: np.ndarray, dims: np.ndarray) -> list:
 
 def conic_step(form: ConvexForm) -> ConicStep:
     """Clarabel's data of ``form`` (see the module doc)."""
-    from .cvxpy_form import _param_rows
-
     B = form.layout.blocks
     n = B.n
     a_r, a_c, a_v, p_r, p_c, p_w, coefs = [], [], [], [], [], [], []
@@ -189,24 +187,13 @@ def conic_step(form: ConvexForm) -> ConicStep:
     cols = np.concatenate(a_c + p_c)
     key, slot = np.unique(cols.astype(np.int64) * m + rows, return_inverse=True)
     indptr = np.searchsorted(key // m, np.arange(n + 1)).astype(np.int64)
-    H = ca.evalf(ca.hessian(form.objective, form.z)[0])
-    hr, hc = (np.asarray(a, dtype=int) for a in H.sparsity().get_triplet())
-    P = sp.triu(sp.csc_matrix((np.array(H.nonzeros()), (hr, hc)), shape=(n, n))).tocsc()
-    grad = ca.substitute(ca.gradient(form.objective, form.z), form.z, ca.DM.zeros(n))
-    dep = _param_rows(grad, form.p)
-    q0 = np.where(dep, 0.0, ca.Function("q0", [form.p], [grad])(np.ones(form.p.numel())).full().ravel())
-    q_rows = np.nonzero(dep)[0]
-    fn = ca.Function("conic_step", [form.p], [ca.vertcat(*coefs), ca.vertcat(*offs), grad[q_rows.tolist()]])
-    col_owner = np.full(n, -1)
-    K, J = B.R_end.shape
-    pair = np.arange(K * J).reshape(K, J)
-    for imap, own in ((B.lam, np.broadcast_to(pair[..., None], B.lam.shape)), (B.R_end, pair),
-                      (B.R_start, pair), (B.R0, pair[0, :B.R0.size])):
-        ok = imap >= 0
-        col_owner[imap[ok]] = own[ok]
-    return ConicStep(form.layout, P, q0, q_rows, (m, n), (key % m).astype(np.int64), indptr, slot.ravel(),
+    quad = split_objective(form.objective, form.z, form.p)
+    P = sp.triu(quad.H).tocsc()
+    fn = ca.Function("conic_step", [form.p], [ca.vertcat(*coefs), ca.vertcat(*offs), quad.q_expr])
+    return ConicStep(form.layout, P, quad.q0, quad.q_rows, (m, n), (key % m).astype(np.int64), indptr, slot.ravel(),
                      np.concatenate(a_v), np.concatenate(p_w), np.concatenate(b_r + o_r),
                      np.concatenate(b_v), np.concatenate(o_w), fn,
-                     [np.concatenate(a) for a in (kinds, dims, firsts, counts, owners)], col_owner)
+                     [np.concatenate(a) for a in (kinds, dims, firsts, counts, owners)],
+                     form.layout.variable_owners())
 
 

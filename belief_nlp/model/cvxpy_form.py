@@ -26,7 +26,7 @@ import scipy.sparse as sp
 from .data import Layout
 from .doc import ConvexForm, StepLayout
 
-__all__ = ["AffineSplit", "split_affine", "CompiledProblem", "compile_problem", "usable_solvers"]
+__all__ = ["AffineSplit", "split_affine", "QuadraticSplit", "split_objective", "CompiledProblem", "compile_problem", "usable_solvers"]
 
 
 @dataclass
@@ -73,6 +73,32 @@ def split_affine(expr: ca.SX, z: ca.SX, p: ca.SX) -> AffineSplit:
     oidx = np.nonzero(dep_o)[0]
     return AffineSplit(m, M, e, rows[pidx], cols[pidx], nz[pidx.tolist()] if pidx.size else ca.SX(0, 1),
                        oidx, off[oidx.tolist()] if oidx.size else ca.SX(0, 1))
+
+
+@dataclass
+class QuadraticSplit:
+    """objective(z, p) = 1/2 z^T H z + q0^T z + q(p)[q_rows]^T z (+ a constant)."""
+
+    H: sp.csr_matrix        # (n, n) symmetric, constant
+    q0: np.ndarray          # (n,) the constant part of the linear term (0 on q_rows)
+    q_rows: np.ndarray      # entries of the linear term that depend on p
+    q_expr: ca.SX           # their expressions of p
+
+
+def split_objective(objective: ca.SX, z: ca.SX, p: ca.SX) -> QuadraticSplit:
+    """Split an objective quadratic in z with constant curvature (the CCP step's)."""
+    n = int(z.numel())
+    H = ca.hessian(objective, z)[0]
+    if ca.depends_on(H, p) or ca.depends_on(H, z):
+        raise ValueError("the model objective must be quadratic in z with constant curvature")
+    Hs = ca.evalf(H)
+    hr, hc = (np.asarray(a, dtype=int) for a in Hs.sparsity().get_triplet())
+    grad = ca.substitute(ca.gradient(objective, z), z, ca.DM.zeros(n))
+    dep = _param_rows(grad, p)
+    q0 = np.where(dep, 0.0, ca.Function("q0", [p], [grad])(np.ones(p.numel())).full().ravel())
+    q_rows = np.nonzero(dep)[0]
+    return QuadraticSplit(sp.csr_matrix((np.array(Hs.nonzeros()), (hr, hc)), shape=(n, n)), q0, q_rows,
+                          grad[q_rows.tolist()])
 
 
 @dataclass
@@ -250,20 +276,10 @@ def compile_problem(form: ConvexForm) -> CompiledProblem:
         else:  # pragma: no cover - the model only makes the kinds above
             raise ValueError(f"unknown cone kind {fam.kind!r}")
     # objective: 1/2 z^T H z (constant H) + q(p)^T z
-    H = ca.hessian(form.objective, form.z)[0]
-    if ca.depends_on(H, form.p) or ca.depends_on(H, form.z):
-        raise ValueError("the model objective must be quadratic in z with constant curvature")
-    Hs = ca.evalf(H)
-    hr, hc = (np.asarray(a, dtype=int) for a in Hs.sparsity().get_triplet())
-    act = np.unique(hr)                                   # variables with curvature (the means)
-    pos = np.full(n, -1)
-    pos[act] = np.arange(act.size)
-    Fq = _square_root(sp.csr_matrix((np.array(Hs.nonzeros()), (pos[hr], pos[hc])), shape=(act.size, act.size)))
-    grad = ca.substitute(ca.gradient(form.objective, form.z), form.z, ca.DM.zeros(n))
-    dep = _param_rows(grad, form.p)
-    q0 = np.where(dep, 0.0, ca.Function("q0", [form.p], [grad])(np.ones(form.p.numel())).full().ravel())
-    qi = np.nonzero(dep)[0]
-    obj = 0.5 * cp.sum_squares(Fq @ z[act]) + q0 @ z + params.vector(cp, grad[qi.tolist()]) @ z[qi]
+    quad = split_objective(form.objective, form.z, form.p)
+    act = np.unique(quad.H.indices)                       # variables with curvature (the means)
+    Fq = _square_root(quad.H[act][:, act])
+    obj = 0.5 * cp.sum_squares(Fq @ z[act]) + quad.q0 @ z + params.vector(cp, quad.q_expr) @ z[quad.q_rows]
     objective = cp.Minimize(obj)
     problem = cp.Problem(objective, list(cons.values()))
     x_ref = cp.Parameter((form.layout.data.K + 1, form.layout.data.d), name="x_ref")

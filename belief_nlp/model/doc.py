@@ -235,6 +235,20 @@ class StepLayout:
             out[B.e] = q / (D.budget / D.n_pairs)           # up = dn = 0: the majorant is tight here
         return out
 
+    def variable_owners(self) -> np.ndarray:
+        """(n,) the (transition, hazard) pair each variable of z belongs to, as
+        k * J + j (0-based transition k; the pair's certificate and auxiliaries,
+        as :attr:`ConeFamily.owner` for its cones), -1 for the others."""
+        B = self.blocks
+        out = np.full(B.n, -1)
+        K, J = B.R_end.shape
+        pair = np.arange(K * J).reshape(K, J)
+        for imap, own in ((B.lam, np.broadcast_to(pair[..., None], B.lam.shape)), (B.R_end, pair),
+                          (B.R_start, pair), (B.R0, pair[0, :B.R0.size])):
+            ok = imap >= 0
+            out[imap[ok]] = own[ok]
+        return out
+
     def extract(self, zv: np.ndarray, point: Layout) -> Layout:
         """The new point from a solution vector (means = x~ + dx). S is projected
         on the PSD cone (the solver keeps S >= 0 only to its tolerance; more
