@@ -143,6 +143,11 @@ def test_active_set_run_matches_the_full_run(case):
     assert not any("active set" in str(s["solver"]) for s in full.stats["steps"])
     assert len(fast.stats["active_pairs"]) >= fast.nit
     assert max(fast.stats["active_pairs"]) < model.data.K * model.data.J
+    # the CVXPY step is compiled only when a step needed it
+    cvxpy_entries = [a for s in fast.stats["steps"] for a in s["attempts"] if a["settings"] not in ("active set",
+                                                                                                     "proximal")]
+    assert (fast.stats["compile"] == "not needed") == (not cvxpy_entries)
+    assert full.stats["compile"] in ("compiled", "memory")
 
 
 def test_a_refused_active_set_answer_sends_the_step_to_the_full_problem(case, monkeypatch):
@@ -159,6 +164,7 @@ def test_a_refused_active_set_answer_sends_the_step_to_the_full_problem(case, mo
     steps = r.stats["steps"]
     assert all(s["attempts"][0]["settings"] == "active set" for s in steps)
     assert any(str(s["solver"]) == "CLARABEL (library)" for s in steps)
+    assert r.stats["compile"] in ("compiled", "memory")          # compiled when the first refusal needed it
     costs = [h.cost for h in r.history if h.accepted]
     assert all(b <= a * (1 + 1e-12) for a, b in zip(costs, costs[1:]))
 

@@ -93,11 +93,14 @@ def test_the_api_tour_line_works_in_a_fresh_process(tmp_path):
 def test_every_iteration_uses_the_one_compiled_problem(small):
     sc, path = small
     MEMORY.clear()
-    res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=4)
+    res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=4, active_set=False)
     assert res.stats["compile"] == "compiled"
-    again = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=4)
+    again = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=4, active_set=False)
     assert again.stats["compile"] == "memory"
     assert again.cost == pytest.approx(res.cost, rel=1e-10)
+    # alpha is the step's parameter: another alpha re-uses the compiled problem
+    other = bn.smooth(sc, path, method="ccp", alpha=0.1, max_iter=4, active_set=False)
+    assert other.stats["compile"] == "memory" and other.safe and other.cost < other.initial_cost
 
 
 def test_a_users_constraint_is_honoured_for_the_whole_run(small):
@@ -167,19 +170,19 @@ def test_disk_cache_round_trip_and_refuses_foreign_entries(small, tmp_path):
     sc, path = small
     MEMORY.clear()
     cache = tmp_path / "cache"
-    first = bn.smooth(sc, path, method="ccp", alpha=0.1, max_iter=2, cache_dir=cache)
+    first = bn.smooth(sc, path, method="ccp", alpha=0.1, max_iter=2, cache_dir=cache, active_set=False)
     assert first.stats["compile"] == "compiled"
     entries = list(cache.glob("*.ccp.pkl"))
     assert len(entries) == 1 and oct(entries[0].stat().st_mode & 0o777) == "0o600"
     MEMORY.clear()
-    second = bn.smooth(sc, path, method="ccp", alpha=0.1, max_iter=2, cache_dir=cache)
+    second = bn.smooth(sc, path, method="ccp", alpha=0.1, max_iter=2, cache_dir=cache, active_set=False)
     assert second.stats["compile"] == "disk" and second.cost == pytest.approx(first.cost, rel=1e-9)
     # tampered: one byte changed -> ignored and rebuilt
     blob = bytearray(entries[0].read_bytes())
     blob[-10] ^= 0xFF
     entries[0].write_bytes(bytes(blob))
     MEMORY.clear()
-    third = bn.smooth(sc, path, method="ccp", alpha=0.1, max_iter=2, cache_dir=cache)
+    third = bn.smooth(sc, path, method="ccp", alpha=0.1, max_iter=2, cache_dir=cache, active_set=False)
     assert third.stats["compile"] == "compiled"
     # a pickle written by someone else (not signed with this folder's key) is never loaded
     model = BeliefModel(sc, first.path.K, 0.1)

@@ -234,3 +234,43 @@ def test_exported_mpc_functions_equal_the_model_at_random_points(start):
     ref = np.array([float(model.f_target(x / s, np.linalg.inv(P / s**2), D.At[n], D.bt[n]))
                     for n in range(D.At.shape[0])]) * s
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12)
+
+
+def test_one_compiled_step_serves_every_alpha(start):
+    """alpha is the step's last parameter: the CVXPY step and the Clarabel
+    data compiled for one alpha, re-used (from memory) for another, give the
+    objective of the convex form built for that other alpha from scratch
+    (differences between random z, so constants cancel)."""
+    from belief_nlp.methods.ccp import conic_step_of
+    from belief_nlp.model.cache import MEMORY
+    from belief_nlp.model.doc import convex_form
+
+    sc, ws, model, z = start
+    MEMORY.clear()
+    compiled_step(model)
+    conic_step_of(model)
+    other = BeliefModel(sc, model.data.K, 0.37)
+    step, origin, _ = compiled_step(other)
+    conic = conic_step_of(other)
+    assert origin == "memory" and step.layout.data.alpha == conic.layout.data.alpha == 0.37
+    fresh = convex_form(other.data)
+    f_obj = ca.Function("f", [fresh.z, fresh.p], [fresh.objective])
+    rng = np.random.default_rng(5)
+    q = _perturb(other, z, rng, 0.02)
+    rho = initial_rho(other, q)
+    step.set_point(q, rho, rho)
+    pv = fresh.layout.params(q, rho, rho)
+    assert pv[-1] == 0.37
+    _, _, qc = conic.data(q, rho, rho)
+    z1, z2 = rng.normal(size=(2, step.layout.blocks.n))
+    ref = float(f_obj(z1, pv) - f_obj(z2, pv))
+    values = []
+    for zr in (z1, z2):
+        step.z.value = zr
+        values.append(float(step.problem.objective.value))
+    assert values[0] - values[1] == pytest.approx(ref, rel=1e-9, abs=1e-9)
+    H = (conic.P + conic.P.T).toarray() - np.diag(conic.P.diagonal())    # Clarabel's P: the upper triangle
+    quad = [0.5 * zr @ (H @ zr) + qc @ zr for zr in (z1, z2)]
+    assert quad[0] - quad[1] == pytest.approx(ref, rel=1e-9, abs=1e-9)
+    # and the model's own alpha is untouched by the other's use
+    assert compiled_step(model)[0].layout.data.alpha == model.data.alpha

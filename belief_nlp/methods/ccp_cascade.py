@@ -13,7 +13,7 @@ from ..errors import ValidationError
 from ..model.cvxpy_form import CompiledProblem, usable_solvers
 from ..smoother.context import SmoothingProblem
 
-__all__ = ["solver_cascade", "SOLVER_DEFAULTS", "HIGH_ACCURACY"]
+__all__ = ["solver_cascade", "LazyCascade", "SOLVER_DEFAULTS", "HIGH_ACCURACY"]
 
 # The step's solver cascade (docs/numerics.md, "CCP solver cascade"). A step
 # takes the first answer a solver reports optimal; an inaccurate answer is
@@ -57,6 +57,37 @@ def solver_cascade(solver: str, options: dict | None = None, budget: bool = Fals
         if all(n != name for n, _, _ in out):
             out.append((name, "defaults", {}))
     return out
+
+
+class LazyCascade:
+    """A cascade whose ``head`` entries are known now and whose rest,
+    ``rest()``, is listed when first read: the active-set step needs only its
+    own entry, and listing the installed solvers imports CVXPY (~0.35 s of a
+    process's first call)."""
+
+    def __init__(self, head: list[tuple[str, str, dict]], rest: Callable[[], list[tuple[str, str, dict]]]):
+        self.head = list(head)
+        self._rest = rest
+        self._all: list | None = None
+
+    def full(self) -> list[tuple[str, str, dict]]:
+        if self._all is None:
+            self._all = self.head + self._rest()
+        return self._all
+
+    def __getitem__(self, i):
+        if self._all is None and isinstance(i, int) and 0 <= i < len(self.head):
+            return self.head[i]
+        if self._all is None and isinstance(i, slice) and i.start in (None, 0) and i.step is None \
+                and i.stop is not None and 0 <= i.stop <= len(self.head):
+            return self.head[i]
+        return self.full()[i]
+
+    def __len__(self) -> int:
+        return len(self.full())
+
+    def __iter__(self):
+        return iter(self.full())
 
 
 def _check_solver(name: str) -> str | None:
@@ -130,12 +161,10 @@ class _StepAnswers:
 
     def next(self) -> tuple[str, str, np.ndarray] | None:
         """(solver label, status, z) of the next answer, or None when the cascade is spent."""
-        import cvxpy as cp
-
         while True:
-            more = self.pos < len(self.cascade) and not self.problem.out_of_time()
-            if more and (self.cascade[self.pos][0] in self.CHEAP or not self.inaccurate):
-                solver, label, opts = self.cascade[self.pos]
+            entry = self._entry(self.pos) if not self.problem.out_of_time() else None
+            if entry is not None and (entry[0] in self.CHEAP or not self.inaccurate):
+                solver, label, opts = entry
                 self.pos += 1
                 if self.fail:                                   # injected fault (tests)
                     status, zv, t, n = "injected failure", None, 0.0, 0
@@ -156,13 +185,22 @@ class _StepAnswers:
                                       "iterations": n})
                 if zv is None:
                     continue
-                if status == cp.OPTIMAL:
+                if status == "optimal":          # (cvxpy.OPTIMAL; the active-set step says it too)
                     return f"{solver} ({label})", status, zv
                 self.inaccurate.append((f"{solver} ({label})", status, zv))
             elif self.inaccurate:
                 return self.inaccurate.pop(0)
             else:
                 return None
+
+
+    def _entry(self, i: int) -> tuple[str, str, dict] | None:
+        """Entry i of the cascade, None past its end (a :class:`LazyCascade`
+        lists its rest only when an entry there is read)."""
+        try:
+            return self.cascade[i]
+        except IndexError:
+            return None
 
 
 def _checked(status: str, zv: np.ndarray | None, t: float, n: int, step: CompiledProblem):

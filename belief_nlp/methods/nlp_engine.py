@@ -36,7 +36,7 @@ import contextlib
 import logging
 import os
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import casadi as ca
@@ -167,7 +167,7 @@ def _base_key(problem: SmoothingProblem, formulation: str, margin: float, regula
     parameter), the margin, the regularisation and the formulation ("cholesky"
     and "logchol" are one graph, :meth:`NLPProblem.variant`)."""
     family = "cholesky|logchol" if formulation in ("cholesky", "logchol") else formulation
-    return problem_key(replace(problem.model.data, alpha=0.0), margin, f"nlp:{family}:{regularisation}")
+    return problem_key(problem.model.data, margin, f"nlp:{family}:{regularisation}")
 
 
 def _nlp(problem: SmoothingProblem, formulation: str, margin: float, regularisation: float, floor: float,
@@ -193,7 +193,7 @@ def _solver(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulat
     # formulations' keys (no second build of an identical NLP); alpha is the
     # NLP's parameter, not part of it: one solver serves every alpha
     floor_key = floor if formulation == "logchol" else None
-    key = problem_key(replace(problem.model.data, alpha=0.0), margin,
+    key = problem_key(problem.model.data, margin,
                       f"{backend.plugin}:{formulation}:{regularisation}:{floor_key}:{sorted(opts.items())!r}")
     entry = _CACHE.get(key) if cache else None
     if entry is not None:

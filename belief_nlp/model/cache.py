@@ -1,6 +1,6 @@
 """Compiled CCP problems kept in memory and, when asked, on disk.
 
-Compiling the CVXPY problem of a (scenario, K, alpha) costs about a second
+Compiling the CVXPY problem of a (scenario, K) costs about a second
 (docs/numerics.md); re-solving it costs milliseconds more than the solver.
 The memory cache keeps the last few; the disk cache (off by default) keeps
 them across processes:
@@ -39,11 +39,14 @@ __all__ = ["problem_key", "MemoryCache", "DiskCache", "default_cache_dir", "MEMO
 log = logging.getLogger("belief_nlp.cache")
 
 # bump when the model's structure changes in a way the versions do not show
-MODEL_REVISION = 4
+# (5: alpha became a parameter of every form and left the key)
+MODEL_REVISION = 5
 
 
 def problem_key(D: ProblemData, chi2_margin: float, solver: str, proximal: float = 0.0) -> str:
-    """Hash of everything that shapes the compiled problem."""
+    """Hash of everything that shapes the compiled problem. alpha is not part
+    of it: every form takes alpha as a parameter (the NLP's ``p``, the CCP
+    step's last parameter), so one compiled problem serves every alpha."""
     import casadi
 
     from .._version import __version__
@@ -51,7 +54,7 @@ def problem_key(D: ProblemData, chi2_margin: float, solver: str, proximal: float
     h = hashlib.sha256()
     for part in (MODEL_REVISION, __version__, _cvxpy_version(), casadi.__version__, solver, repr(chi2_margin),
                  *((repr(proximal),) if proximal else ()),
-                 D.sigma, D.chi2, D.chi2_target, D.budget, D.continuous, D.alpha, D.K, D.d, D.hazard_names):
+                 D.sigma, D.chi2, D.chi2_target, D.budget, D.continuous, D.K, D.d, D.hazard_names):
         h.update(repr(part).encode())
     for arr in (D.x0, D.P0, D.W, D.A, D.b, D.face_mask, D.At, D.bt):
         a = np.ascontiguousarray(arr)

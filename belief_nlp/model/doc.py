@@ -40,15 +40,15 @@ The means enter as steps dx = x - x~ (the variables stay O(step) and the
 solver sees no cancellation between large constants).
 
 Every cone family is an expression of the decision vector z, affine in z,
-whose coefficients may depend on the parameter vector p (the current point
-and rho). :mod:`.cvxpy_form` turns the families into one CVXPY problem
+whose coefficients may depend on the parameter vector p (the current point,
+rho and alpha, so that one compiled step serves every alpha of a scenario and K). :mod:`.cvxpy_form` turns the families into one CVXPY problem
 compiled once; the coefficient values for a point come from one generated
 CasADi function.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import casadi as ca
 import numpy as np
@@ -191,7 +191,13 @@ class StepLayout:
                  np.asarray(rho_start, float).ravel(), np.asarray(rho_end, float).ravel()]
         if self.blocks.ell is not None:
             parts.append(np.asarray(point.tau, float).ravel())
+        parts.append([self.data.alpha])     # last: one compiled step serves every alpha (for_alpha)
         return np.concatenate(parts)
+
+    def for_alpha(self, alpha: float) -> "StepLayout":
+        """This layout with the data of another alpha: alpha is the last
+        parameter (:meth:`params`), not part of the compiled problem."""
+        return self if alpha == self.data.alpha else StepLayout(replace(self.data, alpha=float(alpha)), self.blocks)
 
     def point_vector(self, point: Layout) -> np.ndarray:
         """z of ``point`` itself (dx = 0) with every auxiliary at its tightest
@@ -279,8 +285,8 @@ class ConvexForm:
     """The convexified DOC program at a symbolic point (see module doc).
 
     z : decision vector (steps, Q, S, lam, auxiliaries; ``layout.blocks``).
-    p : parameter vector, the point of linearisation and the split weights
-        (:meth:`StepLayout.params`).
+    p : parameter vector, the point of linearisation, the split weights and
+        alpha (:meth:`StepLayout.params`).
     objective : quadratic in z.
     families : the cone constraints.
     """
@@ -317,6 +323,7 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7, proximal: float = 0.0
     sizes = [(K + 1) * d, (K + 1) * d * d, (K + 1) * d * d, K * J * F, K * J, K * J]
     if B.ell is not None:
         sizes.append(K * J)                           # the point's levels tau~ (budget mode)
+    sizes.append(1)                                   # alpha: a parameter, so one compiled step serves every alpha
     p = ca.SX.sym("p", int(sum(sizes)))
     parts = ca.vertsplit(p, list(np.concatenate([[0], np.cumsum(sizes)]).astype(int)))
     xt = ca.reshape(parts[0], d, K + 1)               # column k = x~_k (row-major ravel -> transposed)
@@ -348,7 +355,8 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7, proximal: float = 0.0
     concave = sum(logdet_tangent(Yt[k], Y[k]) for k in range(1, K + 1))
     # -log det Q_k: its conic epigraph (u_k); log det Q_1 is a constant
     neg_logdet_q = -sum(ca.sum1(_pick(z, B.u[k][:, None])) for k in range(2, K + 1)) if K > 1 else 0
-    objective = control + 0.5 * D.alpha * (concave + neg_logdet_q)
+    alpha = parts[-1]
+    objective = control + 0.5 * alpha * (concave + neg_logdet_q)
     if proximal > 0:
         keep = B.lam >= 0
         lam_flat = np.flatnonzero(keep)               # index into point.lam.ravel() (K, J, F)
