@@ -25,6 +25,12 @@ is solver inaccuracy), go on to the next entry. Only when every entry fails
 does the run end "solver_failed" (no answer), "infeasible_iterate" or
 "non_monotone" (answers, all refused), with the best iterate;
 ``stats["steps"]`` says which solver answered each step.
+
+Cost of a run: the step is compiled once per (scenario, K) -- alpha is its
+parameter -- and kept in memory. With the active-set step (the default, with
+Clarabel) the CVXPY problem is compiled only when a step needs it (an answer
+the active-set step could not give): ``stats["compile"]`` is then
+"not needed", else where the problem came from ("compiled", "memory", "disk").
 """
 
 from __future__ import annotations

@@ -19,6 +19,7 @@ them across processes:
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import hmac
 import logging
@@ -63,9 +64,11 @@ def problem_key(D: ProblemData, chi2_margin: float, solver: str, proximal: float
     return h.hexdigest()[:40]
 
 
+@functools.lru_cache(maxsize=1)
 def _cvxpy_version() -> str:
     """cvxpy's version without importing it (the import costs ~0.4 s CPU, which
-    the NLP methods' first call would pay for a key only)."""
+    the NLP methods' first call would pay for a key only); read once (the
+    package metadata lookup took ~2.5 ms, three times per call)."""
     from importlib.metadata import PackageNotFoundError, version
 
     try:
