@@ -8,7 +8,7 @@ stage (the iteration at which mu reached its floor, iterations with an
 inertia correction, primal-infeasible iterations, median alpha_pr,
 backtracking and watchdog steps).
 
-Two studies:
+Three studies:
 
 * ``--study ablation`` (issue 10): K = 20, both alphas, the variants that
   led to the floored log-Cholesky stage and the polish; writes
@@ -21,7 +21,12 @@ Two studies:
   benchmarks/results/ipopt_k_scaling.json. Load averages are recorded per
   case (2 shared cores: CPU seconds are upper bounds).
 
-    python benchmarks/bench_ipopt.py [--study ablation|k] [--seeds 5] [--K 20] [--out FILE]
+* ``--study inertia`` (issue 21, item 3): IPOPT's inertia-correction
+  heuristics (INERTIA_VARIANTS) on paper-multi (seeds 0..9) and the
+  random-polygons family (maps 0..4), both alphas, K = 20 and 40; writes
+  benchmarks/results/ipopt_inertia.json.
+
+    python benchmarks/bench_ipopt.py [--study ablation|k|inertia] [--seeds 5] [--K 20] [--out FILE]
 """
 
 from __future__ import annotations
@@ -59,6 +64,17 @@ K_VARIANTS = {
     "mu-based bound multipliers, mu_init 1e-5": dict(solver_options={"bound_mult_init_method": "mu-based",
                                                                      "mu_init": 1e-5}),
     "bound_push = bound_frac = 1e-2": dict(solver_options={"bound_push": 1e-2, "bound_frac": 1e-2}),
+}
+
+#: inertia correction (Waechter & Biegler 2006, section 3.1): after a corrected
+#: iteration IPOPT first tries perturb_dec_fact x the last delta_w (1/3); after
+#: an uncorrected one it starts at first_hessian_perturbation and multiplies
+#: by perturb_inc_fact_first (100) until the inertia is right
+INERTIA_VARIANTS = {
+    "defaults (dec 1/3, first increase x100)": dict(),
+    "dec 0.1, first increase x10": dict(solver_options={"perturb_dec_fact": 0.1, "perturb_inc_fact_first": 10.0}),
+    "dec 0.1, first increase x10, kappa_d 0": dict(solver_options={"perturb_dec_fact": 0.1,
+                                                                   "perturb_inc_fact_first": 10.0, "kappa_d": 0.0}),
 }
 
 _ROW = re.compile(r"^\s*(\d+)(r?)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+?)([a-zA-Z]?)\s+(\d+)\s*$")
@@ -205,6 +221,51 @@ def k_study(args) -> dict:
     return out
 
 
+def inertia_study(args) -> dict:
+    """IPOPT's inertia-correction heuristics: the variants of INERTIA_VARIANTS on
+    paper-multi and the random-polygons family (maps 0..n-1), each map with
+    one per-step N = 500 plan (seed = map), both alphas, at every K."""
+    from belief_nlp.families import generate
+
+    maps = [("paper-multi", s, bn.load_scenario("paper-multi")) for s in range(args.seeds)]
+    maps += [(f"random-polygons@{m}", m, generate("random-polygons", m)) for m in range(args.maps)]
+    starts = []
+    for name, seed, sc in maps:
+        plan = bn.plan(sc, n_nodes=500, seed=seed, noise="per_step")
+        if plan.success:
+            starts.append((name, seed, sc, plan.path))
+    out = {"machine": {"cpus": os.cpu_count(), "loadavg_at_start": os.getloadavg()}, "settings": vars(args),
+           "variants": []}
+    for K in args.K:
+        ws = {}
+        for name, seed, sc, path in starts:
+            try:
+                ws[name, seed] = (sc, bn.warm_start(sc, path, K=K))
+            except bn.InfeasibleStartError as exc:           # recorded, not smoothed
+                out.setdefault("no_warm_start", []).append({"map": name, "seed": seed, "K": K, "error": str(exc)})
+        for vname, kw in INERTIA_VARIANTS.items():
+            ipopt.clear_cache()
+            rows = []
+            for (name, seed), (sc, w) in ws.items():
+                for alpha in (0.1, 1.0):
+                    rec = _smooth(sc, w, alpha, **kw)
+                    rec.pop("path")
+                    rows.append({"map": name, "seed": seed, "alpha": alpha, "K": K, **rec})
+            out["variants"].append({"name": vname, "K": K, "options": kw, **_summarise(rows),
+                                    "total_iterations": int(sum(x["iterations"] for x in rows)),
+                                    "total_cpu_s": float(sum(x["cpu_s"] for x in rows)), "rows": rows})
+            v = out["variants"][-1]
+            print(f"{vname}, K = {K}: median {v['median_iterations']} (max {v['max_iterations']}), total "
+                  f"{v['total_iterations']} iterations, {v['total_cpu_s']:.1f} s CPU, {v['converged']}/{v['cases']} "
+                  f"converged, {v['verified']}/{v['cases']} verified, load {v['median_loadavg']:.1f}", flush=True)
+        _cost_ratios([v for v in out["variants"] if v["K"] == K], ("map", "seed", "alpha"))
+        for v in out["variants"]:
+            if v["K"] == K:
+                print(f"  {v['name']}: cost / best median {v['median_cost_ratio_to_best']:.6f}, "
+                      f"max {v['max_cost_ratio_to_best']:.6f}", flush=True)
+    return out
+
+
 def _restarts(sc, answer, K: int, seed: int, first: dict) -> dict:
     """IPOPT from its own answer (means and sensing: ``sensing="path"``) and
     from the answer's means with minimal sensing."""
@@ -220,7 +281,8 @@ def _restarts(sc, answer, K: int, seed: int, first: dict) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--study", choices=("ablation", "k"), default="ablation")
+    ap.add_argument("--study", choices=("ablation", "k", "inertia"), default="ablation")
+    ap.add_argument("--maps", type=int, default=5, help="inertia study: random-polygons maps 0..n-1")
     ap.add_argument("--seeds", type=int, default=None, help="seeds 0..n-1 (ablation: 5, k: 3)")
     ap.add_argument("--K", type=int, nargs="+", default=None, help="ablation: 20; k: 20 40")
     ap.add_argument("--extra-K", type=int, nargs="*", default=[10, 80],
@@ -230,6 +292,9 @@ def main() -> None:
     if args.study == "ablation":
         args.seeds, args.K = args.seeds or 5, args.K or [20]
         out, name = ablation(args), "ipopt_ablation.json"
+    elif args.study == "inertia":
+        args.seeds, args.K = args.seeds or 10, args.K or [20, 40]
+        out, name = inertia_study(args), "ipopt_inertia.json"
     else:
         args.seeds, args.K = args.seeds or 3, args.K or [20, 40]
         out, name = k_study(args), "ipopt_k_scaling.json"
