@@ -8,7 +8,7 @@ stage (the iteration at which mu reached its floor, iterations with an
 inertia correction, primal-infeasible iterations, median alpha_pr,
 backtracking and watchdog steps).
 
-Three studies:
+Four studies:
 
 * ``--study ablation`` (issue 10): K = 20, both alphas, the variants that
   led to the floored log-Cholesky stage and the polish; writes
@@ -25,8 +25,11 @@ Three studies:
   heuristics (INERTIA_VARIANTS) on paper-multi (seeds 0..9) and the
   random-polygons family (maps 0..4), both alphas, K = 20 and 40; writes
   benchmarks/results/ipopt_inertia.json.
+* ``--study polish`` (issue 21, item 3): the polish started from the first
+  stage's multipliers or not (POLISH_VARIANTS), the same cases; writes
+  benchmarks/results/ipopt_polish.json.
 
-    python benchmarks/bench_ipopt.py [--study ablation|k|inertia] [--seeds 5] [--K 20] [--out FILE]
+    python benchmarks/bench_ipopt.py [--study ablation|k|inertia|polish] [--seeds 5] [--K 20] [--out FILE]
 """
 
 from __future__ import annotations
@@ -75,6 +78,14 @@ INERTIA_VARIANTS = {
     "dec 0.1, first increase x10": dict(solver_options={"perturb_dec_fact": 0.1, "perturb_inc_fact_first": 10.0}),
     "dec 0.1, first increase x10, kappa_d 0": dict(solver_options={"perturb_dec_fact": 0.1,
                                                                    "perturb_inc_fact_first": 10.0, "kappa_d": 0.0}),
+}
+
+#: the polish started from the first stage's multipliers (the default since
+#: session 8) or without them (IPOPT ignores the multipliers it is given
+#: unless warm_start_init_point is yes)
+POLISH_VARIANTS = {
+    "polish without multipliers (before)": dict(solver_options={"warm_start_init_point": "no"}),
+    "polish from stage 1's multipliers (default)": dict(),
 }
 
 _ROW = re.compile(r"^\s*(\d+)(r?)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+?)([a-zA-Z]?)\s+(\d+)\s*$")
@@ -221,10 +232,10 @@ def k_study(args) -> dict:
     return out
 
 
-def inertia_study(args) -> dict:
-    """IPOPT's inertia-correction heuristics: the variants of INERTIA_VARIANTS on
-    paper-multi and the random-polygons family (maps 0..n-1), each map with
-    one per-step N = 500 plan (seed = map), both alphas, at every K."""
+def variant_study(args, variants: dict) -> dict:
+    """``variants`` (name -> smooth keywords) on paper-multi and the
+    random-polygons family (maps 0..n-1), each map with one per-step N = 500
+    plan (seed = map), both alphas, at every K."""
     from belief_nlp.families import generate
 
     maps = [("paper-multi", s, bn.load_scenario("paper-multi")) for s in range(args.seeds)]
@@ -243,7 +254,7 @@ def inertia_study(args) -> dict:
                 ws[name, seed] = (sc, bn.warm_start(sc, path, K=K))
             except bn.InfeasibleStartError as exc:           # recorded, not smoothed
                 out.setdefault("no_warm_start", []).append({"map": name, "seed": seed, "K": K, "error": str(exc)})
-        for vname, kw in INERTIA_VARIANTS.items():
+        for vname, kw in variants.items():
             ipopt.clear_cache()
             rows = []
             for (name, seed), (sc, w) in ws.items():
@@ -281,7 +292,7 @@ def _restarts(sc, answer, K: int, seed: int, first: dict) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--study", choices=("ablation", "k", "inertia"), default="ablation")
+    ap.add_argument("--study", choices=("ablation", "k", "inertia", "polish"), default="ablation")
     ap.add_argument("--maps", type=int, default=5, help="inertia study: random-polygons maps 0..n-1")
     ap.add_argument("--seeds", type=int, default=None, help="seeds 0..n-1 (ablation: 5, k: 3)")
     ap.add_argument("--K", type=int, nargs="+", default=None, help="ablation: 20; k: 20 40")
@@ -292,9 +303,10 @@ def main() -> None:
     if args.study == "ablation":
         args.seeds, args.K = args.seeds or 5, args.K or [20]
         out, name = ablation(args), "ipopt_ablation.json"
-    elif args.study == "inertia":
+    elif args.study in ("inertia", "polish"):
         args.seeds, args.K = args.seeds or 10, args.K or [20, 40]
-        out, name = inertia_study(args), "ipopt_inertia.json"
+        out = variant_study(args, INERTIA_VARIANTS if args.study == "inertia" else POLISH_VARIANTS)
+        name = f"ipopt_{args.study}.json"
     else:
         args.seeds, args.K = args.seeds or 3, args.K or [20, 40]
         out, name = k_study(args), "ipopt_k_scaling.json"

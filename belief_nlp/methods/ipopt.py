@@ -33,7 +33,12 @@ DEFAULT_IPOPT_OPTIONS: dict[str, Any] = {
 
 #: changes for the floored log-Cholesky stage and for the polish after it
 LOGCHOL_IPOPT_OPTIONS: dict[str, Any] = {"mu_min": 1e-7}
-POLISH_IPOPT_OPTIONS: dict[str, Any] = {"mu_strategy": "monotone", "mu_init": 1e-8}
+POLISH_IPOPT_OPTIONS: dict[str, Any] = {"mu_strategy": "monotone", "mu_init": 1e-8,
+                                        # the first stage's multipliers as the start's (NLPBackend.warm_duals),
+                                        # the start pushed no further into the interior than mu_init
+                                        "warm_start_init_point": "yes", "warm_start_bound_push": 1e-9,
+                                        "warm_start_bound_frac": 1e-9, "warm_start_slack_bound_push": 1e-9,
+                                        "warm_start_slack_bound_frac": 1e-9, "warm_start_mult_bound_push": 1e-9}
 
 _CONVERGED = {"Solve_Succeeded", "Solved_To_Acceptable_Level"}
 _MAX_ITER = {"Maximum_Iterations_Exceeded"}
@@ -62,6 +67,7 @@ class IpoptBackend(NLPBackend):
     defaults = DEFAULT_IPOPT_OPTIONS
     stage_options = {"logchol": LOGCHOL_IPOPT_OPTIONS, "polish": POLISH_IPOPT_OPTIONS}
     shared_functions = {"grad_f": "nlp_grad_f", "jac_g": "nlp_jac_g", "hess_lag": "nlp_hess_l"}
+    warm_duals = True
 
     def nlpsol_options(self, opts: dict, log_path: str | None) -> dict:
         return {"ipopt": {**opts, "output_file": log_path, "file_print_level": 5}}

@@ -12,9 +12,10 @@ Stages (docs/numerics.md, "IPOPT iterations"):
    a minimal-sensing warm start sits;
 2. a polish of at most ``polish`` iterations on the exact "cholesky" NLP from
    that answer, with the sensing directions held at the floor switched off
-   (:meth:`~belief_nlp.model.nlp_form.NLPProblem.without_sensing`); its
-   answer replaces stage 1's when it converged, is exactly safe and is not
-   costlier.
+   (:meth:`~belief_nlp.model.nlp_form.NLPProblem.without_sensing`), and --
+   for backends with ``warm_duals`` (IPOPT) -- from stage 1's multipliers
+   (the same graph, so the same rows and variables); its answer replaces
+   stage 1's when it converged, is exactly safe and is not costlier.
 
 When a stage stops without converging (iteration share, solver failure, a
 stall of ``stall`` iterations without a lower feasible cost), the solver is
@@ -81,6 +82,10 @@ class NLPBackend:
     #: graph (the polish stage) is given the first one's instead of deriving
     #: them again (empty: the plug-in derives its own every time)
     shared_functions: dict = {}
+    #: whether the polish starts from the first stage's multipliers (lam_x0,
+    #: lam_g0 of the same NLP graph); the plug-in's "polish" stage options
+    #: then say how it uses them (IPOPT: warm_start_init_point)
+    warm_duals = False
     #: whether the plug-in calls CasADi's ``iteration_callback`` every
     #: iteration. One that does not (fatrop) gets its stage budget as its own
     #: limit, no restarts, one history record per solve, and the time limit
@@ -289,6 +294,7 @@ class _Stage:
     build: str = ""
     build_time: float = 0.0
     limit: int = 0                       # the stage's iteration limit
+    duals: tuple | None = None           # (lam_x, lam_g) of the answer's solve (backends with warm_duals)
 
 
 _STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded", "stalled": "Stalled"}
@@ -297,11 +303,12 @@ _STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_Wall
 def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, *, formulation: str, opts: dict,
                  margin: float, regularisation: float, floor: float, candidates: int, cache: bool, start: Layout,
                  max_iter: int, restarts: int, stall: int, offset: int, bar: Any,
-                 bounds: Callable | None = None) -> _Stage:
+                 bounds: Callable | None = None, duals: tuple | None = None) -> _Stage:
     """The solver on one formulation from ``start``: attempts with restarts
     from the best exactly safe point (module doc), at most ``max_iter``
     iterations. ``bounds(nlp, point)`` -> (z0, lbz, ubz) replaces the NLP's
-    own start and bounds."""
+    own start and bounds; ``duals`` (lam_x, lam_g) are the first attempt's
+    initial multipliers (a restart starts without them)."""
     if not backend.calls_back:
         # fatrop's limit m allows m + 1 iterations by its own count (measured)
         opts, restarts = {**opts, backend.limit_key: max(int(max_iter) - 1, 0)}, 0
@@ -327,9 +334,12 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         t_solve, c_solve, log_at = time.perf_counter(), time.process_time(), _log_size(recorder.log_path)
         try:
             x0, lbx, ubx = bounds(nlp, z_start) if bounds else (nlp.pack(z_start), nlp.lbz, nlp.ubz)
+            warm = {"lam_x0": duals[0], "lam_g0": duals[1]} if duals is not None and n_attempts == 0 else {}
             with backend.solving():
-                sol = solver(x0=x0, p=pv, lbx=lbx, ubx=ubx, lbg=nlp.lbg, ubg=nlp.ubg)
+                sol = solver(x0=x0, p=pv, lbx=lbx, ubx=ubx, lbg=nlp.lbg, ubg=nlp.ubg, **warm)
             z_end = np.asarray(sol["x"]).ravel()
+            if backend.warm_duals:
+                stage.duals = (np.asarray(sol["lam_x"]).ravel(), np.asarray(sol["lam_g"]).ravel())
             if not backend.calls_back:
                 recorder.solved(z_end, np.asarray(sol["g"]).ravel(), float(sol["f"]), solver.stats())
         except RuntimeError as exc:   # CasADi raises on some solver exceptions
@@ -395,7 +405,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         second = _solve_stage(problem, backend, _Stage(), formulation="cholesky", floor=floor, opts=polish_opts,
                               bounds=lambda nlp, lay: nlp.without_sensing(lay, floor), start=first.answer[1],
                               max_iter=min(int(polish), max_iter - first.used), restarts=0,
-                              offset=first.used, **common)
+                              offset=first.used, duals=first.duals if backend.warm_duals else None, **common)
         stages.append(second)
     if bar is not None:
         bar.close()
