@@ -103,15 +103,15 @@ def _nlp_stats(stats: dict) -> dict:
 
 def _call(lib, timers: Timers, sc, path, K: int, alpha: float, label: str) -> dict:
     timers.t.clear()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     res = lib.smooth(sc, path, method="auto", K=K, alpha=alpha)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     st = _nlp_stats(res.stats)
     parts = {p: float(timers.t.get(p, 0.0)) for p in PARTS}
     parts["build"] = float(st.get("build_time", 0.0))
     parts["solver"] = float(sum(a.get("wall_time", 0.0) for a in st.get("attempts", [])))
     parts["other"] = wall - sum(v for k, v in parts.items() if k != "other")
-    return {"case": label, "K": K, "alpha": alpha, "wall": wall, "cost": float(res.cost), "status": res.status,
+    return {"case": label, "K": K, "alpha": alpha, "wall": wall, "cpu": cpu, "cost": float(res.cost), "status": res.status,
             "method": res.method, "verified": bool(res.verification.get("safe")),
             "iterations": int(res.stats.get("iter_count", -1)), "parts": parts}
 
@@ -166,6 +166,7 @@ def summarise(runs: list[dict]) -> dict:
     for K in sorted({c["K"] for c in cases}):
         cs = [c for c in cases if c["K"] == K]
         out[f"K{K}"] = {"cases": len(cs), "median_wall": _median(c["wall"] for c in cs),
+                        "median_cpu": _median(c.get("cpu", np.nan) for c in cs),
                         "median_iterations": _median(c["iterations"] for c in cs),
                         "verified": sum(c["verified"] for c in cs),
                         "answered_by": sorted({c["method"] for c in cs}),
@@ -178,15 +179,17 @@ def paired(before: list[dict], after: list[dict]) -> dict:
     b = {(c["K"], c["case"]): c for c in before[0]["cases"]}
     ratios = [(c["cost"] / b[(c["K"], c["case"])]["cost"], c["K"], c["case"]) for c in after[0]["cases"]
               if (c["K"], c["case"]) in b]
-    walls = defaultdict(list)
+    walls, cpus = defaultdict(list), defaultdict(list)
     for rb, ra in zip(before, after):
         for c in ra["cases"]:
             o = next((x for x in rb["cases"] if x["K"] == c["K"] and x["case"] == c["case"]), None)
             if o is not None:
                 walls[c["K"]].append(c["wall"] / o["wall"])
+                cpus[c["K"]].append(c["cpu"] / o["cpu"])     # CPU: the figure to read on a loaded machine
     return {"cost_ratio_max": max(r for r, _, _ in ratios), "cost_ratio_min": min(r for r, _, _ in ratios),
             "cost_ratios": [{"K": K, "case": case, "ratio": r} for r, K, case in ratios],
             "median_wall_ratio": {f"K{K}": _median(v) for K, v in walls.items()},
+            "median_cpu_ratio": {f"K{K}": _median(v) for K, v in cpus.items()},
             "first_call_wall_ratio": _median(ra["first"]["wall"] / rb["first"]["wall"]
                                              for rb, ra in zip(before, after)),
             "new_case_wall_ratio": _median(ra["new_case"]["wall"] / rb["new_case"]["wall"]
