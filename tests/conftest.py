@@ -55,3 +55,36 @@ def ccp_problem(sc, path, alpha: float = 1.0):
 def paper_multi_path():
     """(paper-multi scenario, a safe 20-step belief path with S_k = 1e4 I)."""
     return paper_multi_path_pair()
+
+
+# Warm starts and IPOPT reference answers that several test files use, built
+# once a session (with xdist: once a worker). Tests only read them.
+@pytest.fixture(scope="session")
+def hand_start():
+    """(paper-multi, the warm start of its 20-step hand path)."""
+    sc, path = paper_multi_path_pair()
+    return sc, bn.warm_start(sc, path)
+
+
+@pytest.fixture(scope="session")
+def small_start():
+    """(paper-multi, the warm start of its 10-step hand path)."""
+    sc, path = paper_multi_path_pair(steps_per_segment=2)
+    return sc, bn.warm_start(sc, path)
+
+
+@pytest.fixture(scope="session")
+def ipopt_from():
+    """ipopt_from(start, alpha): IPOPT's answer from a (scenario, warm start)
+    pair, bn.smooth(sc, ws, method="ipopt", alpha=alpha, max_iter=3000) (the
+    method's own limit), solved once a session for each pair and alpha."""
+    done = {}
+
+    def solve(start, alpha):
+        sc, ws = start
+        key = (id(ws), alpha)
+        if key not in done:        # the warm start is kept with its answer: its id stays its own
+            done[key] = ws, bn.smooth(sc, ws, method="ipopt", alpha=alpha, max_iter=3000)
+        return done[key][1]
+
+    return solve

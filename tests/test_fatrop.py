@@ -8,15 +8,11 @@ import belief_nlp as bn
 from belief_nlp.errors import ValidationError
 from belief_nlp.methods.fatrop import available, map_status
 
-from conftest import paper_multi_path_pair
 
 pytestmark = pytest.mark.skipif(not available(), reason="this CasADi build has no fatrop plug-in")
 
 
-@pytest.fixture(scope="module")
-def small_start():
-    sc, path = paper_multi_path_pair(steps_per_segment=2)
-    return sc, bn.warm_start(sc, path)
+# small_start (K = 10) and ipopt_from: tests/conftest.py
 
 
 def test_listed_when_casadi_ships_it():
@@ -24,14 +20,14 @@ def test_listed_when_casadi_ships_it():
     assert bn.get_method("fatrop").max_iter == 300
 
 
-def test_converges_verified_with_raw_stats(small_start):
+def test_converges_verified_with_raw_stats(small_start, ipopt_from):
     """From the same warm start as IPOPT: a verified answer well below the
     start and within 1 % of IPOPT's (fatrop stops on its own tolerance at
     a point near, not at, IPOPT's: docs/numerics.md); the raw stats keep
     fatrop's own statistics and structure."""
     sc, ws = small_start
     res = bn.smooth(sc, ws, method="fatrop", alpha=1.0)
-    ipo = bn.smooth(sc, ws, method="ipopt", alpha=1.0)
+    ipo = ipopt_from(small_start, 1.0)
     assert res.method == "fatrop" and res.safe and bn.verify(sc, res.path).safe
     assert res.cost < 0.8 * res.initial_cost
     assert res.cost == pytest.approx(ipo.cost, rel=1e-2)

@@ -197,3 +197,15 @@ def test_packaging_files():
     assert resources.files("belief_nlp").joinpath("py.typed").is_file()
     assert '"belief_nlp" = ["py.typed"]' in (ROOT / "pyproject.toml").read_text()
     assert "notebooks/*_out/" in (ROOT / ".gitignore").read_text().splitlines()
+
+
+def test_ci_runs_the_readmes_commands():
+    """.ci/run installs with the README's first command and tests with its
+    second, word for word (the test command's plugins come with the test extra)."""
+    readme = (ROOT / "README.md").read_text()
+    block = readme.split("```bash\n", 1)[1].split("```", 1)[0].splitlines()
+    install, test = block[0].split(" && ")[0], block[1]
+    ci = [line.strip() for line in (ROOT / ".ci" / "run").read_text().splitlines()]
+    assert install in ci and test in ci, (install, test)
+    if " -n " in f" {test} ":
+        assert '"pytest-xdist' in (ROOT / "pyproject.toml").read_text()

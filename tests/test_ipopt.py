@@ -12,7 +12,6 @@ from belief_nlp.methods.ipopt import map_status
 from belief_nlp.model import BeliefModel
 from belief_nlp.model.nlp_form import FORMULATIONS, build_nlp
 
-from conftest import paper_multi_path_pair
 
 # CCP's converged costs from the hand path (tests/test_smoother.py pins 2.3128);
 # IPOPT reaches the same local optima, 0.3279 at alpha = 0.1 slightly below
@@ -20,22 +19,13 @@ from conftest import paper_multi_path_pair
 KNOWN = {0.1: 0.3281, 1.0: 2.3128}
 
 
-@pytest.fixture(scope="module")
-def hand_start():
-    sc, path = paper_multi_path_pair()
-    return sc, bn.warm_start(sc, path)
-
-
-@pytest.fixture(scope="module")
-def small_start():
-    sc, path = paper_multi_path_pair(steps_per_segment=2)
-    return sc, bn.warm_start(sc, path)
+# hand_start (K = 20), small_start (K = 10) and ipopt_from: tests/conftest.py
 
 
 @pytest.mark.parametrize("alpha", [0.1, 1.0])
-def test_converges_verified_on_paper_multi(hand_start, alpha):
+def test_converges_verified_on_paper_multi(hand_start, ipopt_from, alpha):
     sc, ws = hand_start
-    res = bn.smooth(sc, ws, method="ipopt", alpha=alpha, max_iter=3000)
+    res = ipopt_from(hand_start, alpha)
     assert res.method == "ipopt" and res.status == "converged" and res.success
     assert res.safe and bn.verify(sc, res.path).safe
     # same local optimum as CCP (within 0.5 %), much lower than the start
@@ -53,13 +43,13 @@ def test_converges_verified_on_paper_multi(hand_start, alpha):
     assert res.timings["total"] >= res.timings["solver"] > 0
 
 
-def test_ccp_and_ipopt_agree_from_the_same_start(hand_start):
+def test_ccp_and_ipopt_agree_from_the_same_start(hand_start, ipopt_from):
     """alpha = 1, K = 20: both reach 2.3128 from one warm start. The tolerance
     (0.2 %) covers CCP's stopping rule (relative decrease 1e-4) and IPOPT's
     proximal term on the certificates (bias ~1e-4 relative)."""
     sc, ws = hand_start
     ccp = bn.smooth(sc, ws, method="ccp", alpha=1.0, max_iter=100)
-    ipo = bn.smooth(sc, ws, method="ipopt", alpha=1.0, max_iter=3000)
+    ipo = ipopt_from(hand_start, 1.0)
     assert ccp.safe and ipo.safe
     assert ipo.cost == pytest.approx(ccp.cost, rel=2e-3)
     assert ipo.initial_cost == pytest.approx(ccp.initial_cost)
@@ -77,9 +67,9 @@ def test_cube3d_converges_verified():
 
 
 @pytest.mark.parametrize("formulation", [f for f in FORMULATIONS if f != "cholesky"])
-def test_other_formulations(small_start, formulation):
+def test_other_formulations(small_start, ipopt_from, formulation):
     sc, ws = small_start
-    ref = bn.smooth(sc, ws, method="ipopt", alpha=1.0, max_iter=3000)
+    ref = ipopt_from(small_start, 1.0)
     res = bn.smooth(sc, ws, method="ipopt", alpha=1.0, max_iter=3000, formulation=formulation)
     assert res.success and res.safe, res.message
     # a local method: the same or a nearby local optimum

@@ -14,18 +14,12 @@ from belief_nlp.methods.sqp_unopy import HAVE_UNOPY, UnopySolver, return_status
 from conftest import paper_multi_path_pair
 
 
-@pytest.fixture(scope="module")
-def hand_start():
-    sc, path = paper_multi_path_pair()
-    return sc, bn.warm_start(sc, path)
-
-
-def test_sqp_reaches_ipopts_optimum_from_the_same_start(hand_start):
+def test_sqp_reaches_ipopts_optimum_from_the_same_start(hand_start, ipopt_from):
     """Two NLP solvers on one NLP: the SQP answer is converged, verified and
     within 0.1 % of IPOPT's (both polish on the exact Cholesky NLP)."""
-    sc, ws = hand_start
+    sc, ws = hand_start          # tests/conftest.py, with ipopt_from
     sqp = bn.smooth(sc, ws, method="sqp", alpha=1.0)
-    ipo = bn.smooth(sc, ws, method="ipopt", alpha=1.0)
+    ipo = ipopt_from(hand_start, 1.0)
     assert sqp.method == "sqp" and sqp.solver == "Uno" and sqp.status == "converged" and sqp.success
     assert sqp.safe and bn.verify(sc, sqp.path).safe
     assert sqp.cost == pytest.approx(ipo.cost, rel=1e-3)
@@ -60,7 +54,7 @@ needs_unopy = pytest.mark.skipif(not HAVE_UNOPY, reason="unopy is not installed 
 
 
 @pytest.fixture(scope="module")
-def small_start():
+def tiny_start():
     sc, path = paper_multi_path_pair(steps_per_segment=1)          # K = 5
     return sc, bn.warm_start(sc, path)
 
@@ -83,11 +77,11 @@ def test_unopy_solver_converges_quadratically_on_a_known_problem():
 
 
 @needs_unopy
-def test_both_interfaces_and_ipopt_reach_one_optimum(small_start):
+def test_both_interfaces_and_ipopt_reach_one_optimum(tiny_start):
     """unopy and CasADi's plug-in run the same SQP on the same NLP: converged,
     verified, and the same cost as IPOPT to 0.1 %; unopy's raw statistics
     and one history record per Uno iteration."""
-    sc, ws = small_start
+    sc, ws = tiny_start
     ipo = bn.smooth(sc, ws, method="ipopt", alpha=1.0)
     runs = {i: bn.smooth(sc, ws, method="sqp", alpha=1.0, interface=i) for i in ("unopy", "casadi")}
     for iface, r in runs.items():
@@ -104,10 +98,10 @@ def test_both_interfaces_and_ipopt_reach_one_optimum(small_start):
 
 
 @needs_unopy
-def test_unopy_budget_stops_are_honest(small_start):
+def test_unopy_budget_stops_are_honest(tiny_start):
     """An iteration or time budget ends the run with that status and an exactly
     safe answer no costlier than the warm start."""
-    sc, ws = small_start
+    sc, ws = tiny_start
     r = bn.smooth(sc, ws, method="sqp", alpha=1.0, max_iter=3)
     assert r.status == "max_iter" and r.stats["iter_count"] <= 3
     assert r.safe and bn.verify(sc, r.path).safe and r.cost <= r.initial_cost * (1 + 1e-12)
@@ -117,10 +111,10 @@ def test_unopy_budget_stops_are_honest(small_start):
 
 
 @needs_unopy
-def test_unopy_bad_options_are_our_errors(small_start):
+def test_unopy_bad_options_are_our_errors(tiny_start):
     """unopy checks option names and types (CasADi's plug-in ignores unknown
     names): each refusal is our ValidationError, as is a bad interface."""
-    sc, ws = small_start
+    sc, ws = tiny_start
     for bad in ({"no_such_option": 1}, {"primal_tolerance": "tight"}, {"preset": "byrd"}):
         with pytest.raises(ValidationError) as e:
             bn.smooth(sc, ws, method="sqp", solver_options=bad, interface="unopy")
@@ -139,12 +133,12 @@ def test_unopy_status_texts_map_to_ours():
         assert map_status(return_status(opt, sol)) == "solver_failed", (opt, sol)
 
 
-def test_without_unopy_auto_falls_back_to_casadis_plugin(small_start, monkeypatch):
+def test_without_unopy_auto_falls_back_to_casadis_plugin(tiny_start, monkeypatch):
     """interface="auto" runs CasADi's plug-in when unopy is not installed."""
     from belief_nlp.methods import sqp
 
     monkeypatch.setattr(sqp, "HAVE_UNOPY", False)
-    sc, ws = small_start
+    sc, ws = tiny_start
     r = bn.smooth(sc, ws, method="sqp", alpha=1.0, max_iter=4)
     assert "CasADi" in r.stats["interface"] and r.solver == "Uno"
     assert r.status == "max_iter" and r.safe and "optimization_status" not in r.stats["attempts"][0]

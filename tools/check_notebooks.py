@@ -14,6 +14,7 @@ Usage (from the repository root)::
     python tools/check_notebooks.py            # check every notebook; exit 1 on a difference
     python tools/check_notebooks.py --write    # re-execute and store the outputs
     python tools/check_notebooks.py 01_quickstart --write
+    python tools/check_notebooks.py --jobs 2   # two notebooks at a time, each in its own process (CI)
 
 Notebooks are found by globbing ``notebooks/*.ipynb``, so a new one is checked
 without touching this file. A notebook may name modules it needs in its
@@ -211,28 +212,53 @@ def missing_outputs(nb: nbformat.NotebookNode) -> list[int]:
     return [i for i, c in enumerate(nb.cells) if c.cell_type == "code" and c.get("execution_count") is None]
 
 
+def _timed_execute(path: Path) -> tuple[nbformat.NotebookNode | None, str | None, float]:
+    """(fresh notebook, None, seconds), or (None, the failure's last line, seconds) when a cell raised."""
+    start = time.perf_counter()
+    try:
+        fresh = execute(path)
+    except Exception as exc:  # a cell raised: report it as this notebook's failure
+        return None, str(exc).strip().splitlines()[-1], time.perf_counter() - start
+    return fresh, None, time.perf_counter() - start
+
+
+def _executed(paths: list[Path], jobs: int):
+    """_timed_execute of each path, in the order given; ``jobs`` > 1 runs that
+    many at a time, each in a process of its own (execute() sets environment
+    variables for its kernel, so one process executes one notebook at a time)."""
+    if jobs <= 1 or len(paths) <= 1:
+        yield from map(_timed_execute, paths)
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(min(jobs, len(paths)), mp_context=multiprocessing.get_context("spawn")) as pool:
+        yield from pool.map(_timed_execute, paths)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("names", nargs="*", help="notebook stems (default: every notebook in notebooks/)")
     parser.add_argument("--write", action="store_true", help="store the fresh outputs instead of comparing")
+    parser.add_argument("--jobs", type=int, default=1, metavar="N",
+                        help="notebooks executed at a time, each in its own process (default 1)")
     args = parser.parse_args(argv)
 
     failed = []
     total = time.perf_counter()
+    runnable = []
     for path in notebooks(args.names):
         stored = nbformat.read(path, as_version=4)
         missing = missing_requirements(stored)
         if missing:
             print(f"{path.name}: skipped, needs {', '.join(missing)}", flush=True)
             continue
-        start = time.perf_counter()
-        try:
-            fresh = execute(path)
-        except Exception as exc:  # a cell raised: report it as this notebook's failure
-            print(f"{path.name}: execution failed: {str(exc).strip().splitlines()[-1]}", flush=True)
+        runnable.append((path, stored))
+    for (path, stored), (fresh, error, seconds) in zip(runnable, _executed([p for p, _ in runnable], args.jobs)):
+        if error is not None:
+            print(f"{path.name}: execution failed: {error}", flush=True)
             failed.append(path.name)
             continue
-        seconds = time.perf_counter() - start
         if args.write:
             nbformat.validate(fresh)
             nbformat.write(fresh, path)
