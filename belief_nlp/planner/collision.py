@@ -50,11 +50,13 @@ import numpy as np
 
 from .. import geometry
 from .kernels import _all, _any, _min
+from .refine_scalar import refine_pairs
 from .screen import HazardScreen
 
 __all__ = ["CollisionChecker"]
 
 _DEPTH = 4          # sub-interval halvings before handing a pair to the exact minimiser (4: fastest, measured)
+_SCALAR_PAIRS = 24  # open pairs up to which the 2-D sub-interval layers run in Python floats (measured)
 
 
 def _chol2(P: np.ndarray):
@@ -148,6 +150,8 @@ class CollisionChecker:
                     kk = o.vertices.shape[0]
                     self.E[i, kk - 1] = o.vertices[0] - o.vertices[-1]
                     self.E[i, kk:] = 0.0
+                # the polygons as Python floats for the scalar sub-interval layers
+                self._polys = [list(zip(*self.V[i].T.tolist(), *self.E[i].T.tolist())) for i in range(len(obstacles))]
         # obstacles first, so that screen column j < n_obs is obstacle j
         self.screen = HazardScreen(obstacles + walls, self.thr, self.thr_witness) if obstacles + walls else None
         target = scenario.target
@@ -256,11 +260,22 @@ class CollisionChecker:
         certificates: a capsule beyond a face misses the polygon), then the
         middle witness where it fails. The data of each pair (its edge's
         start, step, covariance, noise, and its polygon) is gathered once and
-        carried along the splits."""
+        carried along the splits. Up to ``_SCALAR_PAIRS`` pairs, the same
+        layers in Python floats (:func:`.refine_scalar.refine_pairs`: the same
+        verdicts, a tenth of the time on a few pairs)."""
         blocked = np.zeros(x0.shape[0], dtype=bool)
         xs = x0[e]
         dx = x1[e] - xs
-        Ps, We, V, E = P0[e], W_e[e], self.V[j], self.E[j]
+        Ps, We = P0[e], W_e[e]
+        if e.size <= _SCALAR_PAIRS:
+            n = e.size
+            res = refine_pairs(zip(e.tolist(), j.tolist(), xs.tolist(), dx.tolist(), Ps.reshape(n, 4).tolist(),
+                                   We.reshape(n, 4).tolist()), self._polys, self.thr, self.thr_witness, _DEPTH)
+            if res is not None:
+                hit, left = res
+                blocked[list(hit)] = True
+                return self._exact_rest(x0, x1, P0, W_e, np.array(sorted(left), dtype=np.intp), blocked)
+        V, E = self.V[j], self.E[j]
         sa = np.zeros(e.size)
         sb = np.ones(e.size)
         xa, xb, Pb = xs, xs + dx, Ps + We
