@@ -7,8 +7,9 @@ planner runs the straightforward numpy computation of the earlier rounds:
   (:mod:`belief_nlp.planner.refine_scalar`) decide every edge and count
   every statistic as the numpy rounds do, on random and grazing edges;
 * whole planner runs with every fast path on and off give identical trees
-  (means, covariances, parents, costs) and statistics, on paper-multi per
-  step and per metre and on maps of a random family.
+  (means, covariances, parents, costs) and statistics (but for the counts
+  of the collision layers, whose depths differ), on paper-multi per step
+  and per metre and on maps of a random family.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ def _switched_off(monkeypatch):
 @pytest.mark.parametrize("size", [1, 3, 12, 40])
 def test_scalar_sub_intervals_are_the_numpy_rounds(name, size, monkeypatch):
     sc = bn.load_scenario(name)
+    monkeypatch.setattr(collision, "_SCALAR_DEPTH", collision._DEPTH2)    # the same layers
     rng = np.random.default_rng(size)
     batches = [_grazing_edges(sc, rng, size) for _ in range(30)]
     monkeypatch.setattr(collision, "_SCALAR_PAIRS", 10 ** 6)
@@ -103,4 +105,5 @@ def test_fast_paths_give_the_same_trees(case, monkeypatch):
     plain = [bn.plan(sc, n_nodes=300, seed=seed, **kw) for seed in (0, 1)]
     for f, p in zip(fast, plain):
         assert _fingerprint(f) == _fingerprint(p)
-        assert f.stats == p.stats
+        assert ({k: v for k, v in f.stats.items() if not k.startswith("collision")}
+                == {k: v for k, v in p.stats.items() if not k.startswith("collision")})

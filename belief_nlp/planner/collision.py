@@ -18,7 +18,8 @@ convex minimisation over s), which accepts on its lower bound only.
    - sqrt(chi2' a^T P(s) a) >= 0 on [0, 1]; g is linear minus the root of a
    linear function, hence convex, with a closed-form minimiser.
 3. **Obstacles** left open, per pair and sub-interval [s_a, s_b] of [0, 1]
-   (halved up to ``_DEPTH`` times while undecided, :meth:`CollisionChecker._refine`):
+   (halved up to ``_DEPTH`` times while undecided, in 2-D ``_DEPTH2`` or
+   ``_SCALAR_DEPTH`` times, :meth:`CollisionChecker._refine`):
 
    - *certificates of clearance*. P(s) <= P(s_b) on the interval, so every
      ellipse there lies inside E(x(s), P(s_b)). In 2-D: the sub-segment
@@ -55,8 +56,14 @@ from .screen import HazardScreen
 
 __all__ = ["CollisionChecker"]
 
-_DEPTH = 4          # sub-interval halvings before handing a pair to the exact minimiser (4: fastest, measured)
-_SCALAR_PAIRS = 24  # open pairs up to which the 2-D sub-interval layers run in Python floats (measured)
+_DEPTH = 4          # sub-interval halvings before handing a pair to the exact minimiser (3-D; 4: fastest, measured)
+# 2-D (measured on the recorded batches of two paper-multi runs, all with the
+# same verdicts): with the Python-float layers for small batches a
+# sub-interval costs about 1 % of an exact call, so both go deeper before
+# the exact minimiser (exact calls per two runs 124 -> 9, replay 2.10 -> 1.89 s)
+_DEPTH2 = 8         # halvings of the numpy layers
+_SCALAR_PAIRS = 24  # open pairs up to which the layers run in Python floats
+_SCALAR_DEPTH = 10  # halvings of the Python-float layers
 
 
 def _chol2(P: np.ndarray):
@@ -270,7 +277,7 @@ class CollisionChecker:
         if e.size <= _SCALAR_PAIRS:
             n = e.size
             res = refine_pairs(zip(e.tolist(), j.tolist(), xs.tolist(), dx.tolist(), Ps.reshape(n, 4).tolist(),
-                                   We.reshape(n, 4).tolist()), self._polys, self.thr, self.thr_witness, _DEPTH)
+                                   We.reshape(n, 4).tolist()), self._polys, self.thr, self.thr_witness, _SCALAR_DEPTH)
             if res is not None:
                 hit, left = res
                 blocked[list(hit)] = True
@@ -279,7 +286,7 @@ class CollisionChecker:
         sa = np.zeros(e.size)
         sb = np.ones(e.size)
         xa, xb, Pb = xs, xs + dx, Ps + We
-        for depth in range(_DEPTH + 1):
+        for depth in range(_DEPTH2 + 1):
             sm = 0.5 * (sa + sb)
             xm = xs + sm[:, None] * dx
             Pm = Ps + sm[:, None, None] * We
@@ -287,7 +294,7 @@ class CollisionChecker:
             clear = seg >= self.thr
             hit = (mid < self.thr_witness) & ~clear
             blocked[e[hit]] = True
-            if depth == _DEPTH:
+            if depth == _DEPTH2:
                 e = e[~hit & ~clear]
                 break
             r = (~(hit | clear | blocked[e])).nonzero()[0]
