@@ -6,6 +6,8 @@ planner runs the straightforward numpy computation of the earlier rounds:
 * the 2-D sub-interval layers in Python floats
   (:mod:`belief_nlp.planner.refine_scalar`) decide every edge and count
   every statistic as the numpy rounds do, on random and grazing edges;
+* the 2-D geodesic steering in Python floats is the generic steering bit
+  for bit;
 * whole planner runs with every fast path on and off give identical trees
   (means, covariances, parents, costs) and statistics (but for the counts
   of the collision layers, whose depths differ), on paper-multi per step
@@ -40,8 +42,11 @@ def _grazing_edges(sc, rng, n):
 
 
 def _switched_off(monkeypatch):
-    """Every fast path of this round off: the plain computations."""
+    """The fast paths of this round off: the plain computations."""
+    from belief_nlp.planner.iteration import IterationMixin
+
     monkeypatch.setattr(collision, "_SCALAR_PAIRS", -1)
+    monkeypatch.setattr(IterationMixin, "_steer2", IterationMixin._steer_generic)
 
 
 @pytest.mark.parametrize("name", ["paper-multi", "tutorial"])
@@ -82,6 +87,24 @@ def test_scalar_sub_intervals_fall_back_on_singular_covariances(monkeypatch):
         want = CollisionChecker(sc, MARGIN)._refine(x0, x1, P0, W, e, j)
     assert refused == [None]
     assert np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("noise", ["per_step", "per_metre"])
+def test_steer2_is_the_generic_steering_bit_for_bit(noise, monkeypatch):
+    from belief_nlp.planner import IGRRTStar
+
+    pl = IGRRTStar(bn.load_scenario("paper-multi"), noise=noise)
+    rng = np.random.default_rng(4)
+    cases = []
+    for _ in range(300):
+        A, B = rng.normal(size=(2, 2, 2)) * 10 ** rng.uniform(-3, -1, (2, 1, 1))
+        cases.append((rng.random(2), A @ A.T + 1e-8 * np.eye(2), rng.random(2), B @ B.T + 1e-8 * np.eye(2),
+                      float(rng.uniform(0.05, 1.0))))
+    cases.append((np.zeros(2), np.zeros((2, 2)), np.zeros(2), np.eye(2) * 1e-4, 0.5))   # singular prior (per metre)
+    fast = [pl._steer(*c) for c in cases]
+    plain = [pl._steer_generic(*c) for c in cases]
+    for (xf, Pf), (xp, Pp) in zip(fast, plain):
+        assert np.array_equal(xf, xp) and np.array_equal(Pf, Pp)
 
 
 def _fingerprint(res) -> str:

@@ -62,7 +62,7 @@ _DEPTH = 4          # sub-interval halvings before handing a pair to the exact m
 # sub-interval costs about 1 % of an exact call, so both go deeper before
 # the exact minimiser (exact calls per two runs 124 -> 9, replay 2.10 -> 1.89 s)
 _DEPTH2 = 8         # halvings of the numpy layers
-_SCALAR_PAIRS = 24  # open pairs up to which the layers run in Python floats
+_SCALAR_PAIRS = 10000  # open pairs up to which the layers run in Python floats
 _SCALAR_DEPTH = 10  # halvings of the Python-float layers
 
 
@@ -443,6 +443,6 @@ class CollisionChecker:
     # ----------------------------------------------------------------- target
     def in_target(self, x: np.ndarray, P: np.ndarray) -> bool:
         """Is E(x, P) inside the target (support function, chi2 with margin)?"""
-        if (self.tb - x @ self.tA.T < 0).any():     # the mean outside: no margin can be >= 0
+        if _any(self.tb - x @ self.tA.T < 0):       # the mean outside: no margin can be >= 0
             return False
         return bool(np.min(geometry.containment_margins(x, P, self.tA, self.tb, self.thr_target)) >= 0.0)

@@ -34,7 +34,8 @@ _all = np.logical_and.reduce
 _min = np.minimum.reduce
 _max = np.maximum.reduce
 
-__all__ = ["congruence_eigvals", "chol_lower", "chol_factors", "eigh_single", "inv_lower", "lower_congruence_eig2"]
+__all__ = ["congruence_eigvals", "chol2", "chol_lower", "chol_factors", "chol_pair2", "eigh2", "eigh_single", "inv_lower",
+           "lower_congruence_eig2"]
 
 
 def _cong2(s11, s12, s22, T):
@@ -116,47 +117,69 @@ def inv_lower(L: np.ndarray) -> np.ndarray:
     return np.linalg.inv(L)
 
 
+def chol2(a: float, b01: float, b10: float, c: float) -> tuple[float, float, float, float, float, float]:
+    """Python floats (l11, l21, l22, det, big, b) of one 2x2 SPD matrix [[a, b01],
+    [b10, c]] read symmetrically (b = (b01 + b10) / 2): its lower Cholesky
+    factor, det P = (l11 l22)^2 and its larger eigenvalue ``big``. Raises
+    ``np.linalg.LinAlgError`` when it is not positive definite."""
+    b = 0.5 * (b01 + b10)
+    if not a > 0:
+        raise np.linalg.LinAlgError("matrix is not positive definite")
+    l11 = math.sqrt(a)
+    l21 = b / l11
+    r = c - l21 * l21
+    if not r > 0:
+        raise np.linalg.LinAlgError("matrix is not positive definite")
+    l22 = math.sqrt(r)
+    half_tr = 0.5 * (a + c)
+    big = half_tr + math.sqrt((0.5 * (a - c)) ** 2 + b * b)
+    return l11, l21, l22, (l11 * l22) ** 2, big, b
+
+
+def chol_pair2(l11: float, l21: float, l22: float) -> tuple[np.ndarray, np.ndarray]:
+    """(L, L^-1) as 2x2 arrays from the entries of :func:`chol2` (one array
+    allocation for both: they are views of a (2, 2, 2) stack)."""
+    LL = np.array([[[l11, 0.0], [l21, l22]], [[1.0 / l11, 0.0], [-l21 / (l11 * l22), 1.0 / l22]]])
+    return LL[0], LL[1]
+
+
 def chol_factors(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
     """(L, L^-1, log det P, smallest eigenvalue) of one SPD matrix.
 
     Raises ``np.linalg.LinAlgError`` when P is not positive definite. The 2-D
-    case is done in scalar arithmetic (a single 2x2 matrix costs far less in
-    plain floats than in numpy calls).
+    case is done in scalar arithmetic (:func:`chol2`: a single 2x2 matrix
+    costs far less in plain floats than in numpy calls).
     """
     if P.shape == (2, 2):
         (a, b01), (b10, c) = P.tolist()
-        b = 0.5 * (b01 + b10)
-        if not a > 0:
-            raise np.linalg.LinAlgError("matrix is not positive definite")
-        l11 = math.sqrt(a)
-        l21 = b / l11
-        r = c - l21 * l21
-        if not r > 0:
-            raise np.linalg.LinAlgError("matrix is not positive definite")
-        l22 = math.sqrt(r)
-        L = np.array([[l11, 0.0], [l21, l22]])
-        Linv = np.array([[1.0 / l11, 0.0], [-l21 / (l11 * l22), 1.0 / l22]])
-        half_tr = 0.5 * (a + c)
-        big = half_tr + math.sqrt((0.5 * (a - c)) ** 2 + b * b)
-        det = (l11 * l22) ** 2
+        l11, l21, l22, det, big, _ = chol2(a, b01, b10, c)
+        L, Linv = chol_pair2(l11, l21, l22)
         return L, Linv, math.log(det), det / big
     L = chol_lower(P)
     return L, inv_lower(L), 2.0 * float(np.sum(np.log(np.diagonal(L)))), float(np.linalg.eigvalsh(P)[0])
 
 
+def eigh2(a: float, b01: float, b10: float, c: float) -> tuple[float, float, float, float]:
+    """(larger eigenvalue, smaller eigenvalue, cos, sin) of one symmetric 2x2
+    matrix [[a, b01], [b10, c]] read symmetrically, in Python floats: the
+    Jacobi rotation angle theta = atan2(2b, a - c) / 2 gives the eigenvector
+    (cos, sin) of the larger one, the smaller is det / larger (no
+    cancellation) unless the larger is not positive."""
+    b = 0.5 * (b01 + b10)
+    th = 0.5 * math.atan2(2.0 * b, a - c)
+    co, si = math.cos(th), math.sin(th)
+    big = a * co * co + 2.0 * b * co * si + c * si * si      # along (co, si)
+    small = (a * c - b * b) / big if big > 0 else a * si * si - 2.0 * b * co * si + c * co * co
+    return big, small, co, si
+
+
 def eigh_single(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues and orthonormal eigenvectors (columns) of one symmetric matrix.
 
-    2-D in closed form (Jacobi rotation angle theta = atan2(2b, a - c) / 2,
-    the smaller eigenvalue as det / larger to avoid cancellation); otherwise
-    ``np.linalg.eigh``.
+    2-D in closed form (:func:`eigh2`); otherwise ``np.linalg.eigh``.
     """
     if M.shape == (2, 2):
         (a, b01), (b10, c) = M.tolist()
-        b = 0.5 * (b01 + b10)
-        th = 0.5 * math.atan2(2.0 * b, a - c)
-        co, si = math.cos(th), math.sin(th)
-        big = a * co * co + 2.0 * b * co * si + c * si * si      # along (co, si)
-        small = (a * c - b * b) / big if big > 0 else a * si * si - 2.0 * b * co * si + c * co * co
+        big, small, co, si = eigh2(a, b01, b10, c)
         return np.array([big, small]), np.array([[co, -si], [si, co]])
     return np.linalg.eigh(0.5 * (M + M.T))

@@ -102,20 +102,23 @@ class HazardScreen:
         return clear.T, (c0, c1)
 
     def segment_hits(self, seg: tuple, rows: np.ndarray) -> np.ndarray:
-        """(len(rows), H): the mean segments of the edges ``rows`` that meet a
-        hazard (``seg`` from :meth:`clearances`)."""
-        c0, c1 = (c[:, :, rows] for c in seg)
+        """(len(rows), H): the mean segments of the edges ``rows`` (distinct,
+        ascending) that meet a hazard (``seg`` from :meth:`clearances`)."""
+        c0, c1 = seg
+        if rows.size != c0.shape[2]:
+            c0, c1 = c0[:, :, rows], c1[:, :, rows]
         # Liang-Barsky: the segment x0 + t (x1 - x0) is inside face f iff
         # t (c0 - c1) >= c0, so it meets the hazard iff max over the faces
         # with c0 > c1 of c0 / (c0 - c1) is at most the min over the others
         # (and [0, 1] meets that range). A face parallel to the segment
         # (c0 = c1) holds for no t when c0 > 0 (the segment runs outside it)
-        # and for every t otherwise.
+        # and for every t otherwise. (The division only where c0 != c1, into
+        # the parallel faces' values: no floating-point warnings to silence.)
         den = c0 - c1
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(den != 0, c0 / den, np.where(c0 > 0, -np.inf, np.inf))
-        lower = _max(np.where(den > 0, ratio, -np.inf), axis=0)
-        upper = _min(np.where(den > 0, np.inf, ratio), axis=0)
+        ratio = np.divide(c0, den, out=np.where(c0 > 0, -np.inf, np.inf), where=den != 0)
+        pos = den > 0
+        lower = _max(np.where(pos, ratio, -np.inf), axis=0)
+        upper = _min(np.where(pos, np.inf, ratio), axis=0)
         return (np.maximum(lower, 0.0) <= np.minimum(upper, 1.0)).T
 
     def ellipse(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
