@@ -271,9 +271,9 @@ class CollisionChecker:
         layers in Python floats (:func:`.refine_scalar.refine_pairs`: the same
         verdicts, a tenth of the time on a few pairs)."""
         blocked = np.zeros(x0.shape[0], dtype=bool)
-        xs = x0[e]
-        dx = x1[e] - xs
-        Ps, We = P0[e], W_e[e]
+        xs = x0.take(e, axis=0)
+        dx = x1.take(e, axis=0) - xs
+        Ps, We = P0.take(e, axis=0), W_e.take(e, axis=0)
         if e.size <= _SCALAR_PAIRS:
             n = e.size
             res = refine_pairs(zip(e.tolist(), j.tolist(), xs.tolist(), dx.tolist(), Ps.reshape(n, 4).tolist(),
@@ -282,7 +282,7 @@ class CollisionChecker:
                 hit, left = res
                 blocked[list(hit)] = True
                 return self._exact_rest(x0, x1, P0, W_e, np.array(sorted(left), dtype=np.intp), blocked)
-        V, E = self.V[j], self.E[j]
+        V, E = self.V.take(j, axis=0), self.E.take(j, axis=0)
         sa = np.zeros(e.size)
         sb = np.ones(e.size)
         xa, xb, Pb = xs, xs + dx, Ps + We
@@ -301,11 +301,13 @@ class CollisionChecker:
             if not r.size:
                 e = e[r]
                 break
+            # (take: numpy's fancy indexing of a leading axis is several times slower)
             rr = np.concatenate([r, r])
-            e, xs, dx, Ps, We, V, E = e[rr], xs[rr], dx[rr], Ps[rr], We[rr], V[rr], E[rr]
-            sa, sb = np.concatenate([sa[r], sm[r]]), np.concatenate([sm[r], sb[r]])
-            xa, xb = np.concatenate([xa[r], xm[r]]), np.concatenate([xm[r], xb[r]])
-            Pb = np.concatenate([Pm[r], Pb[r]])
+            e, sa, sb = e[rr], np.concatenate([sa[r], sm[r]]), np.concatenate([sm[r], sb[r]])
+            xs, dx, Ps, We, V, E = (a.take(rr, axis=0) for a in (xs, dx, Ps, We, V, E))
+            xa, xb = np.concatenate([xa.take(r, axis=0), xm.take(r, axis=0)]), np.concatenate([xm.take(r, axis=0),
+                                                                                            xb.take(r, axis=0)])
+            Pb = np.concatenate([Pm.take(r, axis=0), Pb.take(r, axis=0)])
         return self._exact_rest(x0, x1, P0, W_e, e, blocked)
 
     def _exact_rest(self, x0, x1, P0, W_e, e, blocked) -> np.ndarray:
@@ -360,7 +362,7 @@ class CollisionChecker:
         blocked = np.zeros(n, dtype=bool)
         if rows.size:
             # witnesses: the mean segment meets a hazard of an open pair
-            hit = _any(self.screen.segment_hits(seg, rows) & pending[rows], axis=1)
+            hit = _any(self.screen.segment_hits(seg, rows) & pending.take(rows, axis=0), axis=1)
             if _any(hit):
                 blocked[rows[hit]] = True
                 rows = rows[~hit]
@@ -376,14 +378,14 @@ class CollisionChecker:
         pairs): the end witness, the walls in closed form, then the obstacles
         (:meth:`_refine`). Sets ``blocked`` in place."""
         m = self.n_obs
-        wit = self.screen.end_witness(x1[rows], P1[rows])
+        wit = self.screen.end_witness(x1.take(rows, axis=0), P1.take(rows, axis=0))
         if wit is not None:
-            more = _any(wit & pending[rows], axis=1)
+            more = _any(wit & pending.take(rows, axis=0), axis=1)
             if _any(more):
                 blocked[rows[more]] = True
                 rows = rows[~more]
         if rows.size and m < pending.shape[1]:
-            wr = rows[_any(pending[rows, m:], axis=1)]
+            wr = rows[_any(pending.take(rows, axis=0)[:, m:], axis=1)]
             if wr.size:
                 # the walls exactly, in closed form
                 ok = self._walls_clear(x0[wr], x1[wr], P0[wr], W_e[wr])
@@ -391,7 +393,7 @@ class CollisionChecker:
                     blocked[wr[~ok]] = True
                     rows = rows[~blocked[rows]]
         if rows.size and m:
-            sub = pending[rows, :m]
+            sub = pending.take(rows, axis=0)[:, :m]
             e, j = sub.nonzero()
             if e.size:
                 st = self.stats

@@ -145,8 +145,8 @@ class IterationMixin:
             prior = live.extra.get("prior")
             if prior is None:
                 prior = live.extra["prior"] = live.pe + self._W_entries
-            return prior if rows is None else prior[:, rows]
-        pe = live.pe if rows is None else live.pe[:, rows]
+            return prior if rows is None else prior.take(rows, axis=1)
+        pe = live.pe if rows is None else live.pe.take(rows, axis=1)
         return pe + self._W_entries * w
 
     # --------------------------------------------------------------- iterate
@@ -227,7 +227,7 @@ class IterationMixin:
             else:
                 w11, w12, w22 = self._W_list
                 S[0, k:], S[1, k:], S[2, k:] = p11 + w11, p12 + w12, p22 + w22
-            S[3:, k:] = tree.le[:, nn]
+            S[3:, k:] = tree.le.take(nn, axis=1)
             lossless_all, info_all = metric.edges2(*S)
             lossless, info = lossless_all[:k], info_all[:k]
         else:
@@ -278,13 +278,13 @@ class IterationMixin:
         P0 = np.empty((nc + nr, d, d))
         x1 = np.empty((nc + nr, d))
         pn = live_idx[cand[order]]
-        x0[:nc] = tree.x[pn]
-        P0[:nc] = tree.P[pn]
+        tree.x.take(pn, axis=0, out=x0[:nc])
+        tree.P.take(pn, axis=0, out=P0[:nc])
         x1[:nc] = x
         if nr:
             x0[nc:] = x
             P0[nc:] = P
-            x1[nc:] = X[rw]
+            X.take(rw, axis=0, out=x1[nc:])
         if per_metre:
             We = np.concatenate([dn[ok][order], r_d] if nr else [dn[ok][order]])[:, None, None] * W
         else:

@@ -106,7 +106,7 @@ class HazardScreen:
         ascending) that meet a hazard (``seg`` from :meth:`clearances`)."""
         c0, c1 = seg
         if rows.size != c0.shape[2]:
-            c0, c1 = c0[:, :, rows], c1[:, :, rows]
+            c0, c1 = c0.take(rows, axis=2), c1.take(rows, axis=2)
         # Liang-Barsky: the segment x0 + t (x1 - x0) is inside face f iff
         # t (c0 - c1) >= c0, so it meets the hazard iff max over the faces
         # with c0 > c1 of c0 / (c0 - c1) is at most the min over the others
