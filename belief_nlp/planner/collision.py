@@ -50,7 +50,7 @@ import math
 import numpy as np
 
 from .. import geometry
-from .kernels import _all, _any, _min
+from .kernels import _ZERO, _all, _any, _min
 from .refine_scalar import refine_pairs
 from .screen import HazardScreen
 
@@ -137,6 +137,7 @@ class CollisionChecker:
         self.thr = self.chi2 * (1.0 + safety_margin)
         self.thr_target = float(scenario.chi2) * (1.0 + safety_margin)
         self.thr_witness = self.thr * (1.0 - 1e-9)
+        self._thr0 = np.array(self.thr)             # (0-d: see kernels._const)
         walls = [h for h in scenario.hazards if h.A.shape[0] == 1]
         obstacles = [h for h in scenario.hazards if h.A.shape[0] > 1]
         self.wall_a = np.array([w.A[0] for w in walls]).reshape(-1, self.dim)
@@ -417,7 +418,7 @@ class CollisionChecker:
         if _any(inside):
             return None
         # a face of every hazard with the ellipse beyond it: clear as it is
-        ok = _any((slack > 0) & (slack * slack >= self.thr * np.maximum(aPa, 0.0)), axis=0)
+        ok = _any((slack > _ZERO) & (slack * slack >= self._thr0 * np.maximum(aPa, _ZERO)), axis=0)
         if _all(ok):
             return 0
         m = self.n_obs

@@ -34,6 +34,19 @@ _all = np.logical_and.reduce
 _min = np.minimum.reduce
 _max = np.maximum.reduce
 
+
+def _const(v: float) -> np.ndarray:
+    a = np.array(v)
+    a.setflags(write=False)
+    return a
+
+
+# Constants of the hot elementwise paths as 0-d arrays: an array op with a
+# Python (or numpy) scalar goes through numpy's scalar conversion and
+# promotion, about 1-2 us more per call than with a 0-d array (and an int
+# literal in a comparison more still); the values and results are the same.
+_ZERO, _HALF, _ONE, _TWO = _const(0.0), _const(0.5), _const(1.0), _const(2.0)
+
 __all__ = ["congruence_eigvals", "chol2", "chol_lower", "chol_factors", "chol_pair2", "eigh2", "eigh_single", "inv_lower",
            "lower_congruence_eig2"]
 
@@ -53,15 +66,15 @@ def _eig2_pair(m11, m12, m22):
     The larger root is computed directly, the smaller as det / larger, which
     avoids the cancellation of (tr - disc)/2 for ill-conditioned matrices.
     """
-    half_tr = 0.5 * (m11 + m22)
+    half_tr = _HALF * (m11 + m22)
     m12sq = m12 * m12
-    disc = np.sqrt((0.5 * (m11 - m22)) ** 2 + m12sq)
+    disc = np.sqrt(np.square(_HALF * (m11 - m22)) + m12sq)     # (x ** 2 is np.square)
     big = half_tr + disc
     det = m11 * m22 - m12sq
-    if _all(big > 0):         # always for positive definite input: no masked select needed
+    if _all(big > _ZERO):     # always for positive definite input: no masked select needed
         return det / big, big
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(big > 0, det / big, half_tr - disc), big
+        return np.where(big > _ZERO, det / big, half_tr - disc), big
 
 
 def _eig2(m11, m12, m22):
@@ -80,7 +93,7 @@ def lower_congruence_eig2(s11, s12, s22, t11, t21, t22):
     """
     m11 = t11 * t11 * s11
     m12 = t11 * t21 * s11 + t11 * t22 * s12
-    m22 = t21 * t21 * s11 + 2.0 * t21 * t22 * s12 + t22 * t22 * s22
+    m22 = t21 * t21 * s11 + _TWO * t21 * t22 * s12 + t22 * t22 * s22
     return _eig2_pair(m11, m12, m22)
 
 

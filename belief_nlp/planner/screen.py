@@ -32,7 +32,7 @@ import numpy as np
 
 from ..geometry.planar import _planar_points, _small_k_matmul
 from ..geometry.polytopes import _Planar
-from .kernels import _all, _any, _max, _min
+from .kernels import _ONE, _ZERO, _all, _any, _max, _min
 
 __all__ = ["HazardScreen"]
 
@@ -98,7 +98,7 @@ class HazardScreen:
         R = _small_k_matmul(data, self.M.T).T           # (3 G, n), contiguous
         c0, c1, q = (R[k * G:(k + 1) * G].reshape(shape) for k in range(3))
         slack = np.minimum(c0, c1)
-        clear = _any((slack > 0) & (slack * slack >= q), axis=0)
+        clear = _any((slack > _ZERO) & (slack * slack >= q), axis=0)
         return clear.T, (c0, c1)
 
     def segment_hits(self, seg: tuple, rows: np.ndarray) -> np.ndarray:
@@ -115,11 +115,11 @@ class HazardScreen:
         # and for every t otherwise. (The division only where c0 != c1, into
         # the parallel faces' values: no floating-point warnings to silence.)
         den = c0 - c1
-        ratio = np.divide(c0, den, out=np.where(c0 > 0, -np.inf, np.inf), where=den != 0)
-        pos = den > 0
+        ratio = np.divide(c0, den, out=np.where(c0 > _ZERO, -np.inf, np.inf), where=den != _ZERO)
+        pos = den > _ZERO
         lower = _max(np.where(pos, ratio, -np.inf), axis=0)
         upper = _min(np.where(pos, np.inf, ratio), axis=0)
-        return (np.maximum(lower, 0.0) <= np.minimum(upper, 1.0)).T
+        return (np.maximum(lower, _ZERO) <= np.minimum(upper, _ONE)).T
 
     def ellipse(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For one ellipse E(x, P): (inside (H,): the mean is in the hazard or on
