@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from .collision import CollisionChecker
-from .kernels import _any, _max, chol2, chol_factors, chol_pair2, eigh2, eigh_single
+from .kernels import _any, _const, _max, chol2, chol_factors, chol_pair2, eigh2, eigh_single
 from .sampling import SampleStream
 from .tree import BeliefTree, LiveView
 
@@ -26,6 +26,7 @@ __all__ = ["IterationMixin"]
 
 _REL_EPS = 1e-12           # relative tie tolerance for cost comparisons
 _EIG_FLOOR_FACTOR = 1e-3   # samples shrunk below 1e-3 * eig_range[0] are rejected
+_BELOW = _const(1 - _REL_EPS)
 
 
 def _distances(x: np.ndarray, live: LiveView) -> np.ndarray:
@@ -202,7 +203,8 @@ class IterationMixin:
 
         # parent candidates: live nodes with a lossless edge of cost <= r (cost >= distance)
         dist = _distances(x, live)
-        near = (dist <= r).nonzero()[0]
+        r0 = np.array(r)                    # 0-d, compared thrice (see kernels._const)
+        near = (dist <= r0).nonzero()[0]
         if near.size == 0:
             st["rejected_no_candidate"] += 1
             tm["candidates"] += time.perf_counter() - t1
@@ -233,7 +235,7 @@ class IterationMixin:
         else:
             lossless, info = metric.edges_to(live.P[near], dn if per_metre else np.ones(near.size), P, L, Linv)
         Dn = metric.cost(dn, info)
-        ok = lossless & (Dn <= r)
+        ok = lossless & (Dn <= r0)
         cand = near[ok]                         # positions in live_idx
         if cand.size == 0:
             st["rejected_no_candidate"] += 1
@@ -258,7 +260,7 @@ class IterationMixin:
                 lossless_r, info_r = metric.edges_from(P, wr, tree.P[nodes], tree.L[nodes], tree.Linv[nodes])
             Dr = metric.cost(dr, info_r)
             new_lb = c_lb + Dr
-            okr = lossless_r & (Dr <= r) & (new_lb < tree.cost[nodes] * (1 - _REL_EPS))
+            okr = lossless_r & (Dr <= r0) & (new_lb < tree.cost[nodes] * _BELOW)
             if bnb:
                 okr &= new_lb + tree.h[nodes] <= best * (1 + _REL_EPS)
             if _any(okr):

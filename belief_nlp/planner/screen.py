@@ -76,6 +76,7 @@ class HazardScreen:
         self.G = G
         self.A, self.b, self.quad = A, b, np.ascontiguousarray(quad.T)
         self.planar = _Planar.build([(h.A, h.b) for h in hazards]) if d == 2 else None
+        self._ones = np.ones((256, 1))     # the data's first column, sliced (np.ones per call: 2.5 us)
 
     def certify(self, x0: np.ndarray, x1: np.ndarray, P1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(hit, clear), each (n, H): mean segments that meet a hazard, and the
@@ -94,7 +95,10 @@ class HazardScreen:
         planner's parent search needs it only up to its first certified edge."""
         n, d, G = x0.shape[0], self.dim, self.G
         shape = (self.Fm, self.H, n)
-        data = np.concatenate([np.ones((n, 1)), x0, x1, P1.reshape(n, d * d)], axis=1)
+        ones = self._ones
+        if ones.shape[0] < n:
+            ones = self._ones = np.ones((2 * n, 1))
+        data = np.concatenate([ones[:n], x0, x1, P1.reshape(n, d * d)], axis=1)
         R = _small_k_matmul(data, self.M.T).T           # (3 G, n), contiguous
         c0, c1, q = (R[k * G:(k + 1) * G].reshape(shape) for k in range(3))
         slack = np.minimum(c0, c1)
