@@ -446,6 +446,6 @@ class CollisionChecker:
     # ----------------------------------------------------------------- target
     def in_target(self, x: np.ndarray, P: np.ndarray) -> bool:
         """Is E(x, P) inside the target (support function, chi2 with margin)?"""
-        if _any(self.tb - x @ self.tA.T < 0):       # the mean outside: no margin can be >= 0
+        if _any(self.tb - x @ self.tA.T < _ZERO):   # the mean outside: no margin can be >= 0
             return False
         return bool(np.min(geometry.containment_margins(x, P, self.tA, self.tb, self.thr_target)) >= 0.0)

@@ -46,6 +46,7 @@ def _const(v: float) -> np.ndarray:
 # promotion, about 1-2 us more per call than with a 0-d array (and an int
 # literal in a comparison more still); the values and results are the same.
 _ZERO, _HALF, _ONE, _TWO = _const(0.0), _const(0.5), _const(1.0), _const(2.0)
+_INF, _NINF = _const(np.inf), _const(-np.inf)
 
 __all__ = ["congruence_eigvals", "chol2", "chol_lower", "chol_factors", "chol_pair2", "eigh2", "eigh_single", "inv_lower",
            "lower_congruence_eig2"]

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..geometry.planar import _planar_points, _small_k_matmul
 from ..geometry.polytopes import _Planar
-from .kernels import _ONE, _ZERO, _all, _any, _max, _min
+from .kernels import _INF, _NINF, _ONE, _ZERO, _all, _any, _max, _min
 
 __all__ = ["HazardScreen"]
 
@@ -119,10 +119,10 @@ class HazardScreen:
         # and for every t otherwise. (The division only where c0 != c1, into
         # the parallel faces' values: no floating-point warnings to silence.)
         den = c0 - c1
-        ratio = np.divide(c0, den, out=np.where(c0 > _ZERO, -np.inf, np.inf), where=den != _ZERO)
+        ratio = np.divide(c0, den, out=np.where(c0 > _ZERO, _NINF, _INF), where=den != _ZERO)
         pos = den > _ZERO
-        lower = _max(np.where(pos, ratio, -np.inf), axis=0)
-        upper = _min(np.where(pos, np.inf, ratio), axis=0)
+        lower = _max(np.where(pos, ratio, _NINF), axis=0)
+        upper = _min(np.where(pos, _INF, ratio), axis=0)
         return (np.maximum(lower, _ZERO) <= np.minimum(upper, _ONE)).T
 
     def ellipse(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -131,7 +131,7 @@ class HazardScreen:
         face)."""
         slack = (self.A @ x - self.b).reshape(self.Fm, self.H)
         aPa = (P.reshape(-1) @ self.quad).reshape(self.Fm, self.H)
-        return _all(slack <= 0, axis=0), slack, aPa
+        return _all(slack <= _ZERO, axis=0), slack, aPa
 
     def end_witness(self, x1: np.ndarray, P1: np.ndarray) -> np.ndarray | None:
         """(n, H): the end ellipse E(x1, P1) overlaps the hazard (2-D; None in
