@@ -8,6 +8,8 @@ planner runs the straightforward numpy computation of the earlier rounds:
   every statistic as the numpy rounds do, on random and grazing edges;
 * the 2-D geodesic steering in Python floats is the generic steering bit
   for bit;
+* the stacked edge-cost kernels (six products in one call) are the row
+  kernels bit for bit;
 * whole planner runs with every fast path on and off give identical trees
   (means, covariances, parents, costs) and statistics (but for the counts
   of the collision layers, whose depths differ), on paper-multi per step
@@ -105,6 +107,28 @@ def test_steer2_is_the_generic_steering_bit_for_bit(noise, monkeypatch):
     plain = [pl._steer_generic(*c) for c in cases]
     for (xf, Pf), (xp, Pp) in zip(fast, plain):
         assert np.array_equal(xf, xp) and np.array_equal(Pf, Pp)
+
+
+@pytest.mark.parametrize("metric", ["entropy", "hellinger"])
+def test_stacked_kernels_are_the_row_kernels_bit_for_bit(metric):
+    from belief_nlp.planner.kernels import ROWS_S
+    from belief_nlp.planner.metrics import EdgeMetric
+
+    rng = np.random.default_rng(6)
+    m = EdgeMetric(metric, 0.7, "nats", np.eye(2) * 2e-4)
+    n = 400
+    s11, s22 = 10 ** rng.uniform(-7, -2, (2, n))
+    s12 = rng.uniform(-0.9, 0.9, n) * np.sqrt(s11 * s22)
+    t11, t22 = 10 ** rng.uniform(0, 4, (2, n))
+    t21 = rng.normal(size=n) * 10 ** rng.uniform(-300, 4, n)      # down to tiny off-diagonals
+    t21[:5] = 0.0
+    S = np.stack([s11, s12, s22, t11, t21, t22])
+    for got, want in zip(m.edges2_rows(S), m.edges2(*S)):
+        assert np.array_equal(got, want)
+    S6 = S[:3].take(ROWS_S, axis=0)
+    for i in range(0, n, 37):
+        t = (float(t11[i]), float(t21[i]), float(t22[i]))
+        assert np.array_equal(m.nearest_info2_rows(S6, *t), m.nearest_info2(s11, s12, s22, *t))
 
 
 def _fingerprint(res) -> str:

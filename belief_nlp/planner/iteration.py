@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from .collision import CollisionChecker
-from .kernels import _any, _const, _max, chol2, chol_factors, chol_pair2, eigh2, eigh_single
+from .kernels import ROWS_S, _any, _const, _max, chol2, chol_factors, chol_pair2, eigh2, eigh_single
 from .sampling import SampleStream
 from .tree import BeliefTree, LiveView
 
@@ -171,8 +171,13 @@ class IterationMixin:
         # nearest in the (matrix-minimum) edge cost, then steer
         dist = _distances(xs, live)
         if entries and lin is not None:
-            s = self._priors(live, dist if per_metre else None)
-            info = metric.nearest_info2(s[0], s[1], s[2], *lin)
+            # the priors' entries as the kernel's stack of six rows (cached per step)
+            S6 = live.extra.get("prior6") if not per_metre else None
+            if S6 is None:
+                S6 = self._priors(live, dist if per_metre else None).take(ROWS_S, axis=0)
+                if not per_metre:
+                    live.extra["prior6"] = S6
+            info = metric.nearest_info2_rows(S6, *lin)
         else:
             _, Ls_inv, _, _ = chol_factors(Ps)
             info = metric.nearest_info(live.P, dist if per_metre else np.ones_like(dist), Ps, Ls_inv)
@@ -230,7 +235,7 @@ class IterationMixin:
                 w11, w12, w22 = self._W_list
                 S[0, k:], S[1, k:], S[2, k:] = p11 + w11, p12 + w12, p22 + w22
             S[3:, k:] = tree.le.take(nn, axis=1)
-            lossless_all, info_all = metric.edges2(*S)
+            lossless_all, info_all = metric.edges2_rows(S)
             lossless, info = lossless_all[:k], info_all[:k]
         else:
             lossless, info = metric.edges_to(live.P[near], dn if per_metre else np.ones(near.size), P, L, Linv)

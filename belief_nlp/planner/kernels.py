@@ -48,8 +48,9 @@ def _const(v: float) -> np.ndarray:
 _ZERO, _HALF, _ONE, _TWO = _const(0.0), _const(0.5), _const(1.0), _const(2.0)
 _INF, _NINF = _const(np.inf), _const(-np.inf)
 
-__all__ = ["congruence_eigvals", "chol2", "chol_lower", "chol_factors", "chol_pair2", "eigh2", "eigh_single", "inv_lower",
-           "lower_congruence_eig2"]
+__all__ = ["ROWS_S", "congruence_eigvals", "chol2", "chol_lower", "chol_factors", "chol_pair2", "eigh2", "eigh_single", "inv_lower",
+           "lower_congruence_eig2",
+           "lower_congruence_eig2_coef", "lower_congruence_eig2_stack"]
 
 
 def _cong2(s11, s12, s22, T):
@@ -96,6 +97,42 @@ def lower_congruence_eig2(s11, s12, s22, t11, t21, t22):
     m12 = t11 * t21 * s11 + t11 * t22 * s12
     m22 = t21 * t21 * s11 + _TWO * t21 * t22 * s12 + t22 * t22 * s22
     return _eig2_pair(m11, m12, m22)
+
+
+# Rows of the six products of :func:`lower_congruence_eig2`, coefficient times
+# entry: (t11 t11) s11, (t11 t21) s11, (t11 t22) s12, (t21 t21) s11, (2 t21 t22) s12,
+# (t22 t22) s22. With the six in one (6, n) product the kernel is a few calls
+# on a stack instead of a dozen on rows; every product and sum is the same.
+ROWS_S = [0, 0, 1, 0, 1, 2]         # s11, s11, s12, s11, s12, s22 of (s11, s12, s22)
+_ROWS_TA = [3, 3, 3, 4, 4, 5]       # t11, t11, t11, t21, t21 (doubled), t22 of (s.., t11, t21, t22)
+_ROWS_TB = [3, 4, 5, 4, 5, 5]       # t11, t21, t22, t21, t22, t22
+
+
+def _eig2_from_products(prod: np.ndarray):
+    """:func:`_eig2_pair` of the congruence from its six products (rows as ``ROWS_S``),
+    summed as :func:`lower_congruence_eig2` sums them."""
+    m22 = prod[3] + prod[4]
+    m22 += prod[5]
+    return _eig2_pair(prod[0], prod[1] + prod[2], m22)
+
+
+def lower_congruence_eig2_coef(S6: np.ndarray, t11: float, t21: float, t22: float):
+    """:func:`lower_congruence_eig2` for one factor (Python floats) and many
+    priors given as the stack ``S6`` = (s11, s11, s12, s11, s12, s22) (6, n): the
+    coefficients are formed in floats, as there, then one product."""
+    c = np.array([[t11 * t11], [t11 * t21], [t11 * t22], [t21 * t21], [2.0 * t21 * t22], [t22 * t22]])
+    return _eig2_from_products(c * S6)
+
+
+def lower_congruence_eig2_stack(S: np.ndarray):
+    """:func:`lower_congruence_eig2` on the rows of ``S`` = (s11, s12, s22, t11,
+    t21, t22) (6, n), all arrays: coefficients (t_a t_b, with 2 t21 doubled
+    first) and products in two stacked multiplications."""
+    Ta = S.take(_ROWS_TA, axis=0)
+    np.multiply(Ta[4], _TWO, out=Ta[4])
+    prod = Ta * S.take(_ROWS_TB, axis=0)
+    prod *= S.take(ROWS_S, axis=0)
+    return _eig2_from_products(prod)
 
 
 def congruence_eigvals(P: np.ndarray, w: np.ndarray | float, W: np.ndarray, T: np.ndarray) -> np.ndarray:

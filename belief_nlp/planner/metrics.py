@@ -33,7 +33,8 @@ import math
 import numpy as np
 
 from .. import belief
-from .kernels import _HALF, _ONE, _const, congruence_eigvals, lower_congruence_eig2
+from .kernels import (_HALF, _ONE, _const, congruence_eigvals, lower_congruence_eig2, lower_congruence_eig2_coef,
+                      lower_congruence_eig2_stack)
 
 __all__ = ["EdgeMetric", "LOSSLESS_RTOL"]
 
@@ -132,6 +133,17 @@ class EdgeMetric:
     def edges2(self, s11, s12, s22, t11, t21, t22) -> tuple[np.ndarray, np.ndarray]:
         """(lossless, info) of :meth:`edges_to` / :meth:`edges_from` from entries."""
         small, big = lower_congruence_eig2(s11, s12, s22, t11, t21, t22)
+        return small >= _LOSSLESS_MIN, self._from_pair(small, big, _TINY)
+
+    def nearest_info2_rows(self, S6: np.ndarray, t11: float, t21: float, t22: float) -> np.ndarray:
+        """:meth:`nearest_info2` with the priors as the stack (s11, s11, s12, s11,
+        s12, s22) (:func:`.kernels.lower_congruence_eig2_coef`; the same values)."""
+        return self._from_pair(*lower_congruence_eig2_coef(S6, t11, t21, t22), _ONE)
+
+    def edges2_rows(self, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`edges2` on the rows of S = (s11, s12, s22, t11, t21, t22)
+        (:func:`.kernels.lower_congruence_eig2_stack`; the same values)."""
+        small, big = lower_congruence_eig2_stack(S)
         return small >= _LOSSLESS_MIN, self._from_pair(small, big, _TINY)
 
     def cost(self, length: np.ndarray, info: np.ndarray) -> np.ndarray:
