@@ -103,9 +103,10 @@ def lower_congruence_eig2(s11, s12, s22, t11, t21, t22):
 # entry: (t11 t11) s11, (t11 t21) s11, (t11 t22) s12, (t21 t21) s11, (2 t21 t22) s12,
 # (t22 t22) s22. With the six in one (6, n) product the kernel is a few calls
 # on a stack instead of a dozen on rows; every product and sum is the same.
-ROWS_S = [0, 0, 1, 0, 1, 2]         # s11, s11, s12, s11, s12, s22 of (s11, s12, s22)
-_ROWS_TA = [3, 3, 3, 4, 4, 5]       # t11, t11, t11, t21, t21 (doubled), t22 of (s.., t11, t21, t22)
-_ROWS_TB = [3, 4, 5, 4, 5, 5]       # t11, t21, t22, t21, t22, t22
+# (index arrays, not lists: a list index is converted on every call)
+ROWS_S = np.array([0, 0, 1, 0, 1, 2])        # s11, s11, s12, s11, s12, s22 of (s11, s12, s22)
+_ROWS_TA = np.array([3, 3, 3, 4, 4, 5])      # t11, t11, t11, t21, t21 (doubled), t22 of (s.., t11, t21, t22)
+_ROWS_TB = np.array([3, 4, 5, 4, 5, 5])      # t11, t21, t22, t21, t22, t22
 
 
 def _eig2_from_products(prod: np.ndarray):
