@@ -121,16 +121,18 @@ def refine_pairs(pairs: list, polys: list, thr: float, thr_witness: float,
             if e in blocked:
                 continue
             poly = polys[j]
-            # (sa, sb, xa, xb, Pb entries, depth), Pb = P(sb) the largest covariance on [sa, sb]
-            stack = [(0.0, 1.0, xs0, xs1, xs0 + dx0, xs1 + dx1, ps00 + w00, ps01 + w01, ps11 + w11, 0)]
+            # (sa, sb, xa, xb, factor of Pb, depth), Pb = P(sb) the largest covariance on
+            # [sa, sb] (a child's Pb is its parent's or the parent's middle one, so
+            # its factor is carried along, not computed again)
+            stack = [(0.0, 1.0, xs0, xs1, xs0 + dx0, xs1 + dx1, _factor(ps00 + w00, ps01 + w01, ps11 + w11), 0)]
             while stack:
-                sa, sb, xa0, xa1, xb0, xb1, pb00, pb01, pb11, k = stack.pop()
-                if _segment_clear(xa0, xa1, xb0, xb1, *_factor(pb00, pb01, pb11), poly, thr):
+                sa, sb, xa0, xa1, xb0, xb1, fb, k = stack.pop()
+                if _segment_clear(xa0, xa1, xb0, xb1, *fb, poly, thr):
                     continue
                 sm = 0.5 * (sa + sb)
                 xm0, xm1 = xs0 + sm * dx0, xs1 + sm * dx1
-                pm00, pm01, pm11 = ps00 + sm * w00, ps01 + sm * w01, ps11 + sm * w11
-                if _point_dist2(xm0, xm1, *_factor(pm00, pm01, pm11), poly) < thr_witness:
+                fm = _factor(ps00 + sm * w00, ps01 + sm * w01, ps11 + sm * w11)
+                if _point_dist2(xm0, xm1, *fm, poly) < thr_witness:
                     blocked.add(e)
                     left.discard(e)
                     break
@@ -138,8 +140,8 @@ def refine_pairs(pairs: list, polys: list, thr: float, thr_witness: float,
                     left.add(e)
                     continue
                 # second half pushed first: the first half is visited first
-                stack.append((sm, sb, xm0, xm1, xb0, xb1, pb00, pb01, pb11, k + 1))
-                stack.append((sa, sm, xa0, xa1, xm0, xm1, pm00, pm01, pm11, k + 1))
+                stack.append((sm, sb, xm0, xm1, xb0, xb1, fb, k + 1))
+                stack.append((sa, sm, xa0, xa1, xm0, xm1, fm, k + 1))
     except (ValueError, ZeroDivisionError):
         return None
     return blocked, left

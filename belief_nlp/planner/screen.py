@@ -93,14 +93,16 @@ class HazardScreen:
         segment misses the hazard (both ends are beyond one face), so only the
         edges that the certificates leave open need the witness, and the
         planner's parent search needs it only up to its first certified edge."""
-        n, d, G = x0.shape[0], self.dim, self.G
+        n, d = x0.shape[0], self.dim
         shape = (self.Fm, self.H, n)
         ones = self._ones
         if ones.shape[0] < n:
             ones = self._ones = np.ones((2 * n, 1))
         data = np.concatenate([ones[:n], x0, x1, P1.reshape(n, d * d)], axis=1)
-        R = _small_k_matmul(data, self.M.T).T           # (3 G, n), contiguous
-        c0, c1, q = (R[k * G:(k + 1) * G].reshape(shape) for k in range(3))
+        # (3 G, n) made contiguous in one copy, then split as (3, Fm, H, n)
+        # views (slicing the transposed product and reshaping each third
+        # copied three times)
+        c0, c1, q = np.ascontiguousarray(_small_k_matmul(data, self.M.T).T).reshape((3,) + shape)
         slack = np.minimum(c0, c1)
         clear = _any((slack > _ZERO) & (slack * slack >= q), axis=0)
         return clear.T, (c0, c1)
