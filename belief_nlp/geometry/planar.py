@@ -25,6 +25,17 @@ from .polytopes import PolytopeSet, _Planar
 # for 1000 ellipses x 10 polygons on 2 busy cores). Stay under the threshold.
 _GEMM_BUDGET = 200_000
 
+# Constants of :func:`_planar_points` as 0-d arrays (the planner calls it on
+# a few rows at a time, where an op with a Python scalar or an int literal
+# costs 1-2 us more than with a 0-d array in numpy 2.x; the same values), and
+# its column of ones sliced from a kept array.
+_HALF, _TWO, _ZERO, _INF = (np.array(v) for v in (0.5, 2.0, 0.0, np.inf))
+_ONES = np.ones((512, 1))
+
+
+def _ones(n: int) -> np.ndarray:
+    return _ONES[:n] if n <= _ONES.shape[0] else np.ones((n, 1))
+
 
 def _small_k_matmul(T: np.ndarray, M: np.ndarray) -> np.ndarray:
     """T @ M in row blocks small enough for a single-threaded GEMM."""
@@ -40,7 +51,7 @@ def _small_k_matmul(T: np.ndarray, M: np.ndarray) -> np.ndarray:
 
 def _sym_entries(P: np.ndarray, floor: float = _P_FLOOR) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(p11 + floor, symmetrised p12, p22 + floor) of stacked 2x2 matrices."""
-    return P[:, 0, 0] + floor, 0.5 * (P[:, 0, 1] + P[:, 1, 0]), P[:, 1, 1] + floor
+    return P[:, 0, 0] + floor, _HALF * (P[:, 0, 1] + P[:, 1, 0]), P[:, 1, 1] + floor
 
 
 def _planar_points(pl: _Planar, x: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -53,18 +64,18 @@ def _planar_points(pl: _Planar, x: np.ndarray, P: np.ndarray) -> np.ndarray:
     so the minimum over all of them is exact; inside, dist2 = 0.
     """
     n = x.shape[0]
-    R = _small_k_matmul(np.concatenate([np.ones((n, 1)), x, P.reshape(n, 4)], axis=1), pl.M_pt)
+    R = _small_k_matmul(np.concatenate([_ones(n), x, P.reshape(n, 4)], axis=1), pl.M_pt)
     E = pl.n_edges
     c, tx, q, tpa = R[:, :E], R[:, E:2 * E], R[:, 2 * E:3 * E], R[:, 3 * E:4 * E]
     mu = c / q
     u = tx + tpa * mu                       # foot y* = x + P a mu, in edge coordinates
-    ev = np.where((u >= pl.e_lo) & (u <= pl.e_hi), c * mu, np.inf)
+    ev = np.where((u >= pl.e_lo) & (u <= pl.e_hi), c * mu, _INF)
     p11, p12, p22 = (v[:, None] for v in _sym_entries(P))
     rx = pl.vx - x[:, :1]
     ry = pl.vy - x[:, 1:]
-    vv = (p22 * rx * rx - 2 * p12 * rx * ry + p11 * ry * ry) / (p11 * p22 - p12 * p12) + pl.v_pen
+    vv = (p22 * rx * rx - _TWO * p12 * rx * ry + p11 * ry * ry) / (p11 * p22 - p12 * p12) + pl.v_pen
     d2 = np.minimum(np.minimum.reduceat(ev, pl.e_start, axis=1), np.minimum.reduceat(vv, pl.v_start, axis=1))
-    d2[np.minimum.reduceat(R[:, 4 * E:], pl.f_start, axis=1) >= 0] = 0.0      # mean inside
+    d2[np.minimum.reduceat(R[:, 4 * E:], pl.f_start, axis=1) >= _ZERO] = 0.0      # mean inside
     return d2
 
 

@@ -18,7 +18,8 @@ convex minimisation over s), which accepts on its lower bound only.
    - sqrt(chi2' a^T P(s) a) >= 0 on [0, 1]; g is linear minus the root of a
    linear function, hence convex, with a closed-form minimiser.
 3. **Obstacles** left open, per pair and sub-interval [s_a, s_b] of [0, 1]
-   (halved up to ``_DEPTH`` times while undecided, :meth:`CollisionChecker._refine`):
+   (halved up to ``_DEPTH`` times while undecided, in 2-D ``_DEPTH2`` or
+   ``_SCALAR_DEPTH`` times, :meth:`CollisionChecker._refine`):
 
    - *certificates of clearance*. P(s) <= P(s_b) on the interval, so every
      ellipse there lies inside E(x(s), P(s_b)). In 2-D: the sub-segment
@@ -49,12 +50,20 @@ import math
 import numpy as np
 
 from .. import geometry
-from .kernels import _all, _any, _min
+from .kernels import _ZERO, _all, _any, _min
+from .refine_scalar import refine_pairs
 from .screen import HazardScreen
 
 __all__ = ["CollisionChecker"]
 
-_DEPTH = 4          # sub-interval halvings before handing a pair to the exact minimiser (4: fastest, measured)
+_DEPTH = 4          # sub-interval halvings before handing a pair to the exact minimiser (3-D; 4: fastest, measured)
+# 2-D (measured on the recorded batches of two paper-multi runs, all with the
+# same verdicts): with the Python-float layers for small batches a
+# sub-interval costs about 1 % of an exact call, so both go deeper before
+# the exact minimiser (exact calls per two runs 124 -> 9, replay 2.10 -> 1.89 s)
+_DEPTH2 = 8         # halvings of the numpy layers
+_SCALAR_PAIRS = 10000  # open pairs up to which the layers run in Python floats
+_SCALAR_DEPTH = 10  # halvings of the Python-float layers
 
 
 def _chol2(P: np.ndarray):
@@ -128,6 +137,7 @@ class CollisionChecker:
         self.thr = self.chi2 * (1.0 + safety_margin)
         self.thr_target = float(scenario.chi2) * (1.0 + safety_margin)
         self.thr_witness = self.thr * (1.0 - 1e-9)
+        self._thr0 = np.array(self.thr)             # (0-d: see kernels._const)
         walls = [h for h in scenario.hazards if h.A.shape[0] == 1]
         obstacles = [h for h in scenario.hazards if h.A.shape[0] > 1]
         self.wall_a = np.array([w.A[0] for w in walls]).reshape(-1, self.dim)
@@ -148,6 +158,8 @@ class CollisionChecker:
                     kk = o.vertices.shape[0]
                     self.E[i, kk - 1] = o.vertices[0] - o.vertices[-1]
                     self.E[i, kk:] = 0.0
+                # the polygons as Python floats for the scalar sub-interval layers
+                self._polys = [list(zip(*self.V[i].T.tolist(), *self.E[i].T.tolist())) for i in range(len(obstacles))]
         # obstacles first, so that screen column j < n_obs is obstacle j
         self.screen = HazardScreen(obstacles + walls, self.thr, self.thr_witness) if obstacles + walls else None
         target = scenario.target
@@ -256,15 +268,26 @@ class CollisionChecker:
         certificates: a capsule beyond a face misses the polygon), then the
         middle witness where it fails. The data of each pair (its edge's
         start, step, covariance, noise, and its polygon) is gathered once and
-        carried along the splits."""
+        carried along the splits. Up to ``_SCALAR_PAIRS`` pairs, the same
+        layers in Python floats (:func:`.refine_scalar.refine_pairs`: the same
+        verdicts, a tenth of the time on a few pairs)."""
         blocked = np.zeros(x0.shape[0], dtype=bool)
-        xs = x0[e]
-        dx = x1[e] - xs
-        Ps, We, V, E = P0[e], W_e[e], self.V[j], self.E[j]
+        xs = x0.take(e, axis=0)
+        dx = x1.take(e, axis=0) - xs
+        Ps, We = P0.take(e, axis=0), W_e.take(e, axis=0)
+        if e.size <= _SCALAR_PAIRS:
+            n = e.size
+            res = refine_pairs(zip(e.tolist(), j.tolist(), xs.tolist(), dx.tolist(), Ps.reshape(n, 4).tolist(),
+                                   We.reshape(n, 4).tolist()), self._polys, self.thr, self.thr_witness, _SCALAR_DEPTH)
+            if res is not None:
+                hit, left = res
+                blocked[list(hit)] = True
+                return self._exact_rest(x0, x1, P0, W_e, np.array(sorted(left), dtype=np.intp), blocked)
+        V, E = self.V.take(j, axis=0), self.E.take(j, axis=0)
         sa = np.zeros(e.size)
         sb = np.ones(e.size)
         xa, xb, Pb = xs, xs + dx, Ps + We
-        for depth in range(_DEPTH + 1):
+        for depth in range(_DEPTH2 + 1):
             sm = 0.5 * (sa + sb)
             xm = xs + sm[:, None] * dx
             Pm = Ps + sm[:, None, None] * We
@@ -272,18 +295,20 @@ class CollisionChecker:
             clear = seg >= self.thr
             hit = (mid < self.thr_witness) & ~clear
             blocked[e[hit]] = True
-            if depth == _DEPTH:
+            if depth == _DEPTH2:
                 e = e[~hit & ~clear]
                 break
             r = (~(hit | clear | blocked[e])).nonzero()[0]
             if not r.size:
                 e = e[r]
                 break
+            # (take: numpy's fancy indexing of a leading axis is several times slower)
             rr = np.concatenate([r, r])
-            e, xs, dx, Ps, We, V, E = e[rr], xs[rr], dx[rr], Ps[rr], We[rr], V[rr], E[rr]
-            sa, sb = np.concatenate([sa[r], sm[r]]), np.concatenate([sm[r], sb[r]])
-            xa, xb = np.concatenate([xa[r], xm[r]]), np.concatenate([xm[r], xb[r]])
-            Pb = np.concatenate([Pm[r], Pb[r]])
+            e, sa, sb = e[rr], np.concatenate([sa[r], sm[r]]), np.concatenate([sm[r], sb[r]])
+            xs, dx, Ps, We, V, E = (a.take(rr, axis=0) for a in (xs, dx, Ps, We, V, E))
+            xa, xb = np.concatenate([xa.take(r, axis=0), xm.take(r, axis=0)]), np.concatenate([xm.take(r, axis=0),
+                                                                                            xb.take(r, axis=0)])
+            Pb = np.concatenate([Pm.take(r, axis=0), Pb.take(r, axis=0)])
         return self._exact_rest(x0, x1, P0, W_e, e, blocked)
 
     def _exact_rest(self, x0, x1, P0, W_e, e, blocked) -> np.ndarray:
@@ -338,7 +363,7 @@ class CollisionChecker:
         blocked = np.zeros(n, dtype=bool)
         if rows.size:
             # witnesses: the mean segment meets a hazard of an open pair
-            hit = _any(self.screen.segment_hits(seg, rows) & pending[rows], axis=1)
+            hit = _any(self.screen.segment_hits(seg, rows) & pending.take(rows, axis=0), axis=1)
             if _any(hit):
                 blocked[rows[hit]] = True
                 rows = rows[~hit]
@@ -354,14 +379,14 @@ class CollisionChecker:
         pairs): the end witness, the walls in closed form, then the obstacles
         (:meth:`_refine`). Sets ``blocked`` in place."""
         m = self.n_obs
-        wit = self.screen.end_witness(x1[rows], P1[rows])
+        wit = self.screen.end_witness(x1.take(rows, axis=0), P1.take(rows, axis=0))
         if wit is not None:
-            more = _any(wit & pending[rows], axis=1)
+            more = _any(wit & pending.take(rows, axis=0), axis=1)
             if _any(more):
                 blocked[rows[more]] = True
                 rows = rows[~more]
         if rows.size and m < pending.shape[1]:
-            wr = rows[_any(pending[rows, m:], axis=1)]
+            wr = rows[_any(pending.take(rows, axis=0)[:, m:], axis=1)]
             if wr.size:
                 # the walls exactly, in closed form
                 ok = self._walls_clear(x0[wr], x1[wr], P0[wr], W_e[wr])
@@ -369,7 +394,7 @@ class CollisionChecker:
                     blocked[wr[~ok]] = True
                     rows = rows[~blocked[rows]]
         if rows.size and m:
-            sub = pending[rows, :m]
+            sub = pending.take(rows, axis=0)[:, :m]
             e, j = sub.nonzero()
             if e.size:
                 st = self.stats
@@ -393,7 +418,7 @@ class CollisionChecker:
         if _any(inside):
             return None
         # a face of every hazard with the ellipse beyond it: clear as it is
-        ok = _any((slack > 0) & (slack * slack >= self.thr * np.maximum(aPa, 0.0)), axis=0)
+        ok = _any((slack > _ZERO) & (slack * slack >= self._thr0 * np.maximum(aPa, _ZERO)), axis=0)
         if _all(ok):
             return 0
         m = self.n_obs
@@ -421,6 +446,6 @@ class CollisionChecker:
     # ----------------------------------------------------------------- target
     def in_target(self, x: np.ndarray, P: np.ndarray) -> bool:
         """Is E(x, P) inside the target (support function, chi2 with margin)?"""
-        if (self.tb - x @ self.tA.T < 0).any():     # the mean outside: no margin can be >= 0
+        if _any(self.tb - x @ self.tA.T < _ZERO):   # the mean outside: no margin can be >= 0
             return False
         return bool(np.min(geometry.containment_margins(x, P, self.tA, self.tb, self.thr_target)) >= 0.0)

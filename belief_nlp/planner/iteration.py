@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from .collision import CollisionChecker
-from .kernels import _any, chol_factors, eigh_single
+from .kernels import ROWS_S, _any, _const, _max, chol2, chol_factors, chol_pair2, eigh2, eigh_single
 from .sampling import SampleStream
 from .tree import BeliefTree, LiveView
 
@@ -26,17 +26,19 @@ __all__ = ["IterationMixin"]
 
 _REL_EPS = 1e-12           # relative tie tolerance for cost comparisons
 _EIG_FLOOR_FACTOR = 1e-3   # samples shrunk below 1e-3 * eig_range[0] are rejected
+_BELOW = _const(1 - _REL_EPS)
 
 
 def _distances(x: np.ndarray, live: LiveView) -> np.ndarray:
     """Euclidean distances from x to the live nodes. In 2-D from the
     coordinate rows (the same values as the einsum over (n, 2), a fifth of
-    its time on the planner's few hundred nodes)."""
+    its time on the planner's few hundred nodes): both differences in one
+    call on the (2, n) rows (an array op, not two with a Python scalar),
+    then d0 * d0 + d1 * d1 as before."""
     if live.xc is not None:
-        x0, x1 = x.tolist()
-        d0 = x0 - live.xc[0]
-        d1 = x1 - live.xc[1]
-        return np.sqrt(d0 * d0 + d1 * d1)
+        d = x[:, None] - live.xc
+        d *= d
+        return np.sqrt(d[0] + d[1])
     diff = x - live.x
     return np.sqrt(np.einsum("ij,ij->i", diff, diff))
 
@@ -48,7 +50,7 @@ class IterationMixin:
 
     # ---------------------------------------------------------------- helpers
     def _h(self, x: np.ndarray, logdet_P: float) -> float:
-        dist = max(0.0, float((self._tA @ x - self._tb).max()))
+        dist = max(0.0, float(_max(self._tA @ x - self._tb)))     # (the ufunc reduce: no method wrapper)
         if self.metric.metric != "entropy":
             return dist
         return dist + self.metric.weight * max(0.0, 0.5 * (logdet_P - self._logdet_max))
@@ -68,10 +70,18 @@ class IterationMixin:
         at 1 - 1e-6 so that every step senses a little: an exactly sensing-free
         direction would make S = P^-1 - P_hat^-1 a rounding-noise matrix.)
         """
-        x = xn + t * (xs - xn)
         if self.options.steering == "linear":
+            x = xn + t * (xs - xn)
             P = Pn + t * (Ps - Pn)
             return x, 0.5 * (P + P.T)
+        if self.dim == 2:
+            return self._steer2(xn, Pn, xs, Ps, t)
+        return self._steer_generic(xn, Pn, xs, Ps, t)
+
+    def _steer_generic(self, xn: np.ndarray, Pn: np.ndarray, xs: np.ndarray, Ps: np.ndarray,
+                       t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The geodesic :meth:`_steer` in numpy, any dimension."""
+        x = xn + t * (xs - xn)
         w = float(np.linalg.norm(x - xn)) if self.per_metre else 1.0
         P_hat = Pn + w * self.W_edge
         try:
@@ -85,6 +95,32 @@ class IterationMixin:
         LU = L @ U
         P = (LU * lam) @ LU.T
         return x, 0.5 * (P + P.T)
+
+    def _steer2(self, xn: np.ndarray, Pn: np.ndarray, xs: np.ndarray, Ps: np.ndarray,
+                t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The geodesic :meth:`_steer` in 2-D, the same values with fewer numpy
+        calls: what numpy computed elementwise (the interpolated mean, the
+        prior, the factors, the eigen-decomposition, the symmetric part) in
+        Python floats, in the same order of operations (IEEE 754 rounds
+        them the same); the matrix products stay numpy's (its BLAS fuses
+        multiply-adds, which plain floats cannot repeat)."""
+        (xn0, xn1), (xs0, xs1) = xn.tolist(), xs.tolist()
+        x = np.array([xn0 + t * (xs0 - xn0), xn1 + t * (xs1 - xn1)])
+        w = float(np.linalg.norm(x - xn)) if self.per_metre else 1.0
+        (p00, p01), (p10, p11) = Pn.tolist()
+        w00, w01, w10, w11 = self._W4
+        try:
+            l11, l21, l22, _, _, _ = chol2(p00 + w * w00, p01 + w * w01, p10 + w * w10, p11 + w * w11)
+        except np.linalg.LinAlgError:  # singular prior (P0 = 0 and no motion): keep the sample's P
+            return x, Ps
+        L, Linv = chol_pair2(l11, l21, l22)
+        (a, b01), (b10, c) = (Linv @ Ps @ Linv.T).tolist()
+        big, small, co, si = eigh2(a, b01, b10, c)
+        lam = np.array([min(min(max(v, 1e-300), 1.0) ** t, 1.0 - 1e-6) for v in (big, small)])
+        LU = L @ np.array([[co, -si], [si, co]])
+        (p00, p01), (p10, p11) = ((LU * lam) @ LU.T).tolist()
+        # 0.5 (P + P^T) entry by entry (a sum is the same in either order)
+        return x, np.array([[0.5 * (p00 + p00), 0.5 * (p01 + p10)], [0.5 * (p10 + p01), 0.5 * (p11 + p11)]])
 
     def _noise_stack(self, n: int) -> np.ndarray:
         """(n, d, d) copies of the per-step noise W (a read-only view of a
@@ -111,8 +147,8 @@ class IterationMixin:
             prior = live.extra.get("prior")
             if prior is None:
                 prior = live.extra["prior"] = live.pe + self._W_entries
-            return prior if rows is None else prior[:, rows]
-        pe = live.pe if rows is None else live.pe[:, rows]
+            return prior if rows is None else prior.take(rows, axis=1)
+        pe = live.pe if rows is None else live.pe.take(rows, axis=1)
         return pe + self._W_entries * w
 
     # --------------------------------------------------------------- iterate
@@ -136,12 +172,17 @@ class IterationMixin:
         # nearest in the (matrix-minimum) edge cost, then steer
         dist = _distances(xs, live)
         if entries and lin is not None:
-            s = self._priors(live, dist if per_metre else None)
-            info = metric.nearest_info2(s[0], s[1], s[2], *lin)
+            # the priors' entries as the kernel's stack of six rows (cached per step)
+            S6 = live.extra.get("prior6") if not per_metre else None
+            if S6 is None:
+                S6 = self._priors(live, dist if per_metre else None).take(ROWS_S, axis=0)
+                if not per_metre:
+                    live.extra["prior6"] = S6
+            info = metric.nearest_info2_rows(S6, *lin)
         else:
             _, Ls_inv, _, _ = chol_factors(Ps)
             info = metric.nearest_info(live.P, dist if per_metre else np.ones_like(dist), Ps, Ls_inv)
-        D = dist + metric.weight * info
+        D = dist + metric._weight * info
         j = int(D.argmin())
         Dj = D[j]
         t = min(1.0, r / Dj) if Dj > 0 else 1.0
@@ -168,7 +209,8 @@ class IterationMixin:
 
         # parent candidates: live nodes with a lossless edge of cost <= r (cost >= distance)
         dist = _distances(x, live)
-        near = (dist <= r).nonzero()[0]
+        r0 = np.array(r)                    # 0-d, compared thrice (see kernels._const)
+        near = (dist <= r0).nonzero()[0]
         if near.size == 0:
             st["rejected_no_candidate"] += 1
             tm["candidates"] += time.perf_counter() - t1
@@ -193,13 +235,13 @@ class IterationMixin:
             else:
                 w11, w12, w22 = self._W_list
                 S[0, k:], S[1, k:], S[2, k:] = p11 + w11, p12 + w12, p22 + w22
-            S[3:, k:] = tree.le[:, nn]
-            lossless_all, info_all = metric.edges2(*S)
+            S[3:, k:] = tree.le.take(nn, axis=1)
+            lossless_all, info_all = metric.edges2_rows(S)
             lossless, info = lossless_all[:k], info_all[:k]
         else:
             lossless, info = metric.edges_to(live.P[near], dn if per_metre else np.ones(near.size), P, L, Linv)
         Dn = metric.cost(dn, info)
-        ok = lossless & (Dn <= r)
+        ok = lossless & (Dn <= r0)
         cand = near[ok]                         # positions in live_idx
         if cand.size == 0:
             st["rejected_no_candidate"] += 1
@@ -224,7 +266,7 @@ class IterationMixin:
                 lossless_r, info_r = metric.edges_from(P, wr, tree.P[nodes], tree.L[nodes], tree.Linv[nodes])
             Dr = metric.cost(dr, info_r)
             new_lb = c_lb + Dr
-            okr = lossless_r & (Dr <= r) & (new_lb < tree.cost[nodes] * (1 - _REL_EPS))
+            okr = lossless_r & (Dr <= r0) & (new_lb < tree.cost[nodes] * _BELOW)
             if bnb:
                 okr &= new_lb + tree.h[nodes] <= best * (1 + _REL_EPS)
             if _any(okr):
@@ -244,13 +286,13 @@ class IterationMixin:
         P0 = np.empty((nc + nr, d, d))
         x1 = np.empty((nc + nr, d))
         pn = live_idx[cand[order]]
-        x0[:nc] = tree.x[pn]
-        P0[:nc] = tree.P[pn]
+        tree.x.take(pn, axis=0, out=x0[:nc])
+        tree.P.take(pn, axis=0, out=P0[:nc])
         x1[:nc] = x
         if nr:
             x0[nc:] = x
             P0[nc:] = P
-            x1[nc:] = X[rw]
+            X.take(rw, axis=0, out=x1[nc:])
         if per_metre:
             We = np.concatenate([dn[ok][order], r_d] if nr else [dn[ok][order]])[:, None, None] * W
         else:

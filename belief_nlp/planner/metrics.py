@@ -33,7 +33,8 @@ import math
 import numpy as np
 
 from .. import belief
-from .kernels import congruence_eigvals, lower_congruence_eig2
+from .kernels import (_HALF, _ONE, _const, congruence_eigvals, lower_congruence_eig2, lower_congruence_eig2_coef,
+                      lower_congruence_eig2_stack)
 
 __all__ = ["EdgeMetric", "LOSSLESS_RTOL"]
 
@@ -42,6 +43,8 @@ __all__ = ["EdgeMetric", "LOSSLESS_RTOL"]
 # S = P2^-1 - P_hat^-1 of accepted edges safely PSD after rounding (the
 # verifier rejects S with eigenvalues below -1e-8 of its norm).
 LOSSLESS_RTOL = 1e-7
+_LOSSLESS_MIN = _const(1.0 + LOSSLESS_RTOL)
+_TINY = _const(1e-300)
 
 
 class EdgeMetric:
@@ -57,6 +60,7 @@ class EdgeMetric:
         self.info_unit = info_unit
         self.unit_factor = 1.0 / math.log(2.0) if (metric == "entropy" and info_unit == "bits") else 1.0
         self.weight = self.alpha * self.unit_factor
+        self._weight = _const(self.weight)          # (0-d: see kernels._const)
         self.W = np.asarray(W_edge, dtype=float)      # W_rate (per metre) or W (per step)
         self.trW = float(np.trace(self.W))
 
@@ -119,18 +123,29 @@ class EdgeMetric:
 
     def _from_pair(self, small: np.ndarray, big: np.ndarray, floor: float) -> np.ndarray:
         if self.metric == "entropy":           # = _from_lam: a sum of two terms is their plain sum
-            return 0.5 * (np.log(np.maximum(small, floor)) + np.log(np.maximum(big, floor)))
+            return _HALF * (np.log(np.maximum(small, floor)) + np.log(np.maximum(big, floor)))
         return self._from_lam(np.maximum(np.stack([small, big], axis=-1), floor))
 
     def nearest_info2(self, s11, s12, s22, t11: float, t21: float, t22: float) -> np.ndarray:
         """:meth:`nearest_info` from the priors' entries and the sample's L^-1 entries."""
-        return self._from_pair(*lower_congruence_eig2(s11, s12, s22, t11, t21, t22), 1.0)
+        return self._from_pair(*lower_congruence_eig2(s11, s12, s22, t11, t21, t22), _ONE)
 
     def edges2(self, s11, s12, s22, t11, t21, t22) -> tuple[np.ndarray, np.ndarray]:
         """(lossless, info) of :meth:`edges_to` / :meth:`edges_from` from entries."""
         small, big = lower_congruence_eig2(s11, s12, s22, t11, t21, t22)
-        return small >= 1.0 + LOSSLESS_RTOL, self._from_pair(small, big, 1e-300)
+        return small >= _LOSSLESS_MIN, self._from_pair(small, big, _TINY)
+
+    def nearest_info2_rows(self, S6: np.ndarray, t11: float, t21: float, t22: float) -> np.ndarray:
+        """:meth:`nearest_info2` with the priors as the stack (s11, s11, s12, s11,
+        s12, s22) (:func:`.kernels.lower_congruence_eig2_coef`; the same values)."""
+        return self._from_pair(*lower_congruence_eig2_coef(S6, t11, t21, t22), _ONE)
+
+    def edges2_rows(self, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`edges2` on the rows of S = (s11, s12, s22, t11, t21, t22)
+        (:func:`.kernels.lower_congruence_eig2_stack`; the same values)."""
+        small, big = lower_congruence_eig2_stack(S)
+        return small >= _LOSSLESS_MIN, self._from_pair(small, big, _TINY)
 
     def cost(self, length: np.ndarray, info: np.ndarray) -> np.ndarray:
         """Edge cost: length + weight * info."""
-        return length + self.weight * info
+        return length + self._weight * info

@@ -114,6 +114,7 @@ class IGRRTStar(IterationMixin):
         We = self.W_edge
         self._W_entries = np.array([[We[0, 0]], [We[0, 1]], [We[1, 1]]]) if self.dim == 2 else None
         self._W_list = self._W_entries.ravel().tolist() if self.dim == 2 else None
+        self._W4 = We.ravel().tolist()
         self.gamma = o.gamma if o.gamma is not None else default_gamma(self.dim, _polytope_volume(sc.domain))
         # Cost-to-go bound for branch-and-bound, h(x, P) = dist_lb(x) + weight * info_lb(P):
         # dist_lb = largest violated target face (a lower bound of the Euclidean

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -103,31 +104,21 @@ class SampleStream:
 
     def __init__(self, sampler: BeliefSampler, rng: np.random.Generator):
         self.sampler, self.rng = sampler, rng
-        self._u: list[float] = []
-        self._k = 0
+        # the doubles of rng.random(8 * _BLOCK) calls, one after the other, drawn on demand
+        self._uniform = itertools.chain.from_iterable(iter(lambda: rng.random(8 * _BLOCK).tolist(), None)).__next__
         self._x = self._P = None
         self._i = self._n = 0
-
-    def _uniform(self) -> float:
-        if self._k == len(self._u):
-            self._u = self.rng.random(8 * _BLOCK).tolist()
-            self._k = 0
-        u = self._u[self._k]
-        self._k += 1
-        return u
 
     def _refill(self) -> None:
         sp = self.sampler
         nxt = self._uniform
-        xs = np.empty((_BLOCK, 2))
-        lam = np.empty((_BLOCK, 1, 2))
-        R = np.empty((_BLOCK, 2, 2))
-        rows = []
+        # (lo0, lo1, w0, w1, poly, is_box) of the domain and the target, as Python floats
+        boxes = {name: (*lo.tolist(), *(hi - lo).tolist(), poly, is_box)
+                 for name, (poly, lo, hi, is_box) in sp._boxes.items()}
+        xs, lams, rots = [], [], []
         for i in range(_BLOCK):
             goal = sp.goal_bias > 0 and nxt() < sp.goal_bias
-            poly, lo, hi, is_box = sp._boxes["target" if goal else "domain"]
-            lo0, lo1 = lo.tolist()
-            w0, w1 = (hi - lo).tolist()
+            lo0, lo1, w0, w1, poly, is_box = boxes["target" if goal else "domain"]
             for _ in range(10000):
                 x = [lo0 + w0 * nxt(), lo1 + w1 * nxt()]
                 if is_box or np.all(poly.A @ np.array(x) <= poly.b):
@@ -138,10 +129,12 @@ class SampleStream:
             u = -1.0 + 2.0 * nxt()
             t = math.pi * nxt()
             c, s = math.cos(t), math.sin(t)
-            rows.append((x, lam0, min(max(lam0 * math.exp(sp.log_ratio * u), sp.lo), sp.hi), c, s))
-        xs[:] = [r[0] for r in rows]
-        lam[:, 0, :] = [(r[1], r[2]) for r in rows]
-        R[:] = [[[r[3], -r[4]], [r[4], r[3]]] for r in rows]
+            xs += x
+            lams += (lam0, min(max(lam0 * math.exp(sp.log_ratio * u), sp.lo), sp.hi))
+            rots += (c, -s, s, c)
+        xs = np.array(xs).reshape(_BLOCK, 2)
+        lam = np.array(lams).reshape(_BLOCK, 1, 2)
+        R = np.array(rots).reshape(_BLOCK, 2, 2)
         P = (R * lam) @ np.swapaxes(R, 1, 2)
         self._x, self._P = xs, 0.5 * (P + np.swapaxes(P, 1, 2))
         # (L^-1_11, L^-1_21, L^-1_22) of each P, the operations of

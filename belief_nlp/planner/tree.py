@@ -78,7 +78,8 @@ class BeliefTree:
         (rejected samples leave it unchanged, so the gather is reused)."""
         if self._live_cache is None:
             idx = self.live[: self.n].nonzero()[0]
-            self._live_cache = LiveView(idx, self.x[idx], self.P, None if self.pe is None else self.pe[:, idx])
+            self._live_cache = LiveView(idx, self.x.take(idx, axis=0), self.P,
+                                        None if self.pe is None else self.pe.take(idx, axis=1))
         return self._live_cache
 
     def set_live(self, idx, value: bool) -> None:
