@@ -1,5 +1,5 @@
 """The convexified DOC program (:mod:`.doc`) as one CVXPY problem, compiled once
-per (scenario, K, alpha) and re-solved with new parameter values.
+per (scenario, K) -- alpha is a parameter -- and re-solved with new parameter values.
 
 Nothing here knows the maths. Each cone family of the model is an expression
 of z that is affine in z; CasADi's Jacobian splits it into

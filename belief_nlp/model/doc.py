@@ -41,7 +41,8 @@ solver sees no cancellation between large constants).
 
 Every cone family is an expression of the decision vector z, affine in z,
 whose coefficients may depend on the parameter vector p (the current point,
-rho and alpha, so that one compiled step serves every alpha of a scenario and K). :mod:`.cvxpy_form` turns the families into one CVXPY problem
+rho and alpha, so that one compiled step serves every alpha of a scenario
+and K). :mod:`.cvxpy_form` turns the families into one CVXPY problem
 compiled once; the coefficient values for a point come from one generated
 CasADi function.
 """
