@@ -182,7 +182,7 @@ class IterationMixin:
         else:
             _, Ls_inv, _, _ = chol_factors(Ps)
             info = metric.nearest_info(live.P, dist if per_metre else np.ones_like(dist), Ps, Ls_inv)
-        D = dist + metric._weight * info
+        D = dist + metric.weight0 * info
         j = int(D.argmin())
         Dj = D[j]
         t = min(1.0, r / Dj) if Dj > 0 else 1.0

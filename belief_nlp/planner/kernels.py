@@ -36,6 +36,7 @@ _max = np.maximum.reduce
 
 
 def _const(v: float) -> np.ndarray:
+    """A read-only 0-d float array of v."""
     a = np.array(v)
     a.setflags(write=False)
     return a
@@ -48,9 +49,8 @@ def _const(v: float) -> np.ndarray:
 _ZERO, _HALF, _ONE, _TWO = _const(0.0), _const(0.5), _const(1.0), _const(2.0)
 _INF, _NINF = _const(np.inf), _const(-np.inf)
 
-__all__ = ["ROWS_S", "congruence_eigvals", "chol2", "chol_lower", "chol_factors", "chol_pair2", "eigh2", "eigh_single", "inv_lower",
-           "lower_congruence_eig2",
-           "lower_congruence_eig2_coef", "lower_congruence_eig2_stack"]
+__all__ = ["ROWS_S", "congruence_eigvals", "chol2", "chol_lower", "chol_factors", "chol_pair2", "eigh2", "eigh_single",
+           "inv_lower", "lower_congruence_eig2", "lower_congruence_eig2_coef", "lower_congruence_eig2_stack"]
 
 
 def _cong2(s11, s12, s22, T):

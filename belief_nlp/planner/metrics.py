@@ -51,7 +51,8 @@ class EdgeMetric:
     """Information term and cost scaling of one planner configuration.
 
     ``weight`` is the factor in front of the metric value in the edge cost:
-    alpha, or alpha / ln 2 for entropy in bits.
+    alpha, or alpha / ln 2 for entropy in bits (``weight0``: the same as a
+    0-d array, for the batched costs).
     """
 
     def __init__(self, metric: str, alpha: float, info_unit: str, W_edge: np.ndarray):
@@ -60,7 +61,7 @@ class EdgeMetric:
         self.info_unit = info_unit
         self.unit_factor = 1.0 / math.log(2.0) if (metric == "entropy" and info_unit == "bits") else 1.0
         self.weight = self.alpha * self.unit_factor
-        self._weight = _const(self.weight)          # (0-d: see kernels._const)
+        self.weight0 = _const(self.weight)          # the same as a 0-d array (see kernels._const)
         self.W = np.asarray(W_edge, dtype=float)      # W_rate (per metre) or W (per step)
         self.trW = float(np.trace(self.W))
 
@@ -148,4 +149,4 @@ class EdgeMetric:
 
     def cost(self, length: np.ndarray, info: np.ndarray) -> np.ndarray:
         """Edge cost: length + weight * info."""
-        return length + self._weight * info
+        return length + self.weight0 * info
