@@ -64,3 +64,11 @@ class InfeasibleStartError(BeliefNLPError, ValueError):
 
 class SolverError(BeliefNLPError, RuntimeError):
     """A numerical solver is missing or failed in a way that leaves no usable result."""
+
+
+def solver_panicked(exc: BaseException) -> bool:
+    """Whether ``exc`` is a panic of a solver written in Rust (Clarabel):
+    pyo3 raises ``pyo3_runtime.PanicException``, a BaseException, so an
+    ``except Exception`` does not see it. The smoothers treat it as a failed
+    solve (seen: Clarabel's PSD step length on an eigenvalue failure)."""
+    return type(exc).__name__ == "PanicException"

@@ -9,7 +9,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import ValidationError
+from ..errors import ValidationError, solver_panicked
 from ..model.cvxpy_form import CompiledProblem, usable_solvers
 from ..smoother.context import SmoothingProblem
 
@@ -130,6 +130,10 @@ def _solve(step: CompiledProblem, solver: str, options: dict, time_left: float |
             step.problem.solve(solver=solver, warm_start=reuse and solver in REUSE, **opts)
     except (cp.error.SolverError, ValueError, ArithmeticError) as exc:
         return f"error: {str(exc).splitlines()[0][:120]}", None, 0.0, 0
+    except BaseException as exc:           # a Rust solver's panic is a failed solve, not a crash
+        if not solver_panicked(exc):
+            raise
+        return f"error: solver panicked ({str(exc)[:100]})", None, 0.0, 0
     st = step.problem.solver_stats
     status = str(step.problem.status)
     ok = status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) and step.z.value is not None

@@ -27,6 +27,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import solver_panicked
 from .cones import KINDS
 from .data import Layout
 from .doc import ConvexForm, StepLayout
@@ -125,6 +126,10 @@ class ConicStep:
             sol = clarabel.DefaultSolver(P_red, q_red, A_red, b_red, _cones(clarabel, kind[on], dim[on]), st).solve()
         except (ValueError, RuntimeError, ArithmeticError) as exc:
             return f"error: {str(exc).splitlines()[0][:120]}", None, time.perf_counter() - t0, 0
+        except BaseException as exc:       # a Rust panic is a failed solve (the cascade goes on), not a crash
+            if not solver_panicked(exc):
+                raise
+            return f"error: solver panicked ({str(exc)[:100]})", None, time.perf_counter() - t0, 0
         status = {"Solved": "optimal", "AlmostSolved": "optimal_inaccurate"}.get(str(sol.status), str(sol.status))
         if status not in ("optimal", "optimal_inaccurate"):
             return status, None, float(sol.solve_time), int(sol.iterations)
