@@ -26,6 +26,7 @@ from .planner import IGRRTStar, PlanResult, plan
 from .comparison import compare, records_to_table
 from .study.records import load_records
 from .study.ompl_export import export_ompl_benchmark
+from .model.cache import set_disk_cache
 
 # Heavier or optional modules load on first use (plotting pulls in pyplot).
 _LAZY = {"plotting", "export"}
@@ -78,6 +79,7 @@ __all__ = [
     "records_to_table",
     "save_scenario",
     "scenario_from_dict",
+    "set_disk_cache",
     "smooth",
     "verify",
     "warm_start",

@@ -11,6 +11,13 @@ change), the load average. Records go to benchmarks/results/construction.json
 under ``--label``:
 
     python benchmarks/bench_construction.py --baseline /tmp/base --rounds 3 --label vs5ceff4a
+
+``--disk-cache`` also runs the current code with the disk cache on
+(``BELIEF_NLP_CACHE_DIR``): "disk-cold" in an empty folder per process (the
+first process, which writes the entries), "disk-warm" in a folder one
+untimed process filled before (every later process):
+
+    python benchmarks/bench_construction.py --disk-cache --rounds 3 --label disk-cache
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -45,7 +53,7 @@ def worker(package: str | None, K: int) -> dict:
         t, c = time.perf_counter(), time.process_time()
         r = bn.smooth(sc, path, K=K, alpha=alpha)
         out[name] = {"wall": time.perf_counter() - t, "cpu": time.process_time() - c, "cost": r.cost,
-                     "method": r.method, "verified": bool(bn.verify(sc, r.path).safe)}
+                     "method": r.method, "build": (r.stats.get("ipopt") or {}).get("build"), "verified": bool(bn.verify(sc, r.path).safe)}
     return out
 
 
@@ -68,6 +76,7 @@ def main() -> None:
     ap.add_argument("--K", type=int, default=20)
     ap.add_argument("--label", default="current", help="key of this run in the JSON file")
     ap.add_argument("--out", type=Path, default=RESULTS / "construction.json")
+    ap.add_argument("--disk-cache", action="store_true", help="also the current code with a cold and a warm disk cache")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker is not None:
@@ -76,11 +85,22 @@ def main() -> None:
     versions = {"current": ""}
     if args.baseline:
         versions = {"baseline": str(args.baseline.resolve()), **versions}
+    env = {k: v for k, v in os.environ.items() if k != "BELIEF_NLP_CACHE_DIR"}
+    envs = {v: env for v in versions}
+    tmp = tempfile.TemporaryDirectory(prefix="bench_construction_")
+    if args.disk_cache:
+        warm = os.path.join(tmp.name, "warm")
+        envs["disk-warm"] = {**env, "BELIEF_NLP_CACHE_DIR": warm}
+        versions.update({"disk-cold": "", "disk-warm": ""})
+        subprocess.run([sys.executable, __file__, "--worker", "", "--K", str(args.K)], capture_output=True,
+                       text=True, check=True, env=envs["disk-warm"])         # fills the warm folder
     runs: dict = {v: [] for v in versions}
-    for _ in range(args.rounds):
+    for r in range(args.rounds):
+        if args.disk_cache:
+            envs["disk-cold"] = {**env, "BELIEF_NLP_CACHE_DIR": os.path.join(tmp.name, f"cold{r}")}
         for v, package in versions.items():
             out = subprocess.run([sys.executable, __file__, "--worker", package, "--K", str(args.K)],
-                                 capture_output=True, text=True, check=True)
+                                 capture_output=True, text=True, check=True, env=envs[v])
             runs[v].append(json.loads(out.stdout.strip().splitlines()[-1]))
             print(v, {k: round(runs[v][-1][k]["cpu"], 3) for k, _ in CALLS}, flush=True)
     record = {"settings": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}, "runs": runs,

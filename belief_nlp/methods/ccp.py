@@ -45,7 +45,7 @@ import numpy as np
 
 from ..model import BeliefModel, Layout
 from ..model.data import psd_part
-from ..model.cache import MEMORY, DiskCache, problem_key
+from ..model.cache import MEMORY, DiskCache, disk_cache, problem_key
 from ..geometry.transitions import transition_minimiser
 from ..model.conic_form import ConicStep, conic_step
 from ..model.cvxpy_form import CompiledProblem, compile_problem, usable_solvers
@@ -70,15 +70,13 @@ PROXIMAL = 1e-4       # weight of the cascade's proximal step (scaled units; doc
 def compiled_step(model: BeliefModel, solver: str = "CLARABEL", cache_dir: str | Path | bool | None = None,
                   chi2_margin: float = CHI2_MARGIN, proximal: float = 0.0) -> tuple[CompiledProblem, str, DiskCache | None]:
     """The compiled CVXPY problem of ``model``'s CCP step: from memory, from the
-    disk cache (``cache_dir``: True = the user's cache folder, or a folder),
-    else compiled. ``proximal``: the step with that proximal weight
+    disk cache (``cache_dir``: None = the process's, :func:`belief_nlp.set_disk_cache`;
+    True = the user's cache folder; a folder; False = none), else compiled. ``proximal``: the step with that proximal weight
     (:func:`belief_nlp.model.doc.convex_form`). Returns (problem, where it
     came from, the disk cache)."""
     key = problem_key(model.data, chi2_margin, solver, proximal)
     hit = MEMORY.get(key)
-    disk = None
-    if cache_dir:
-        disk = DiskCache(None if cache_dir is True else cache_dir)
+    disk = _disk(cache_dir)
     if hit is not None:
         return _for_alpha(hit, model), "memory", disk
     if disk is not None:
@@ -96,12 +94,28 @@ def compiled_step(model: BeliefModel, solver: str = "CLARABEL", cache_dir: str |
     return step, "compiled", disk
 
 
-def conic_step_of(model: BeliefModel) -> ConicStep:
-    """The model's step as Clarabel's own data (:mod:`belief_nlp.model.conic_form`), built once per model key."""
+def _disk(cache_dir: str | Path | bool | None) -> DiskCache | None:
+    """The disk cache a ``cache_dir`` option means (None: the process's)."""
+    if cache_dir is None:
+        return disk_cache()
+    if cache_dir is False:
+        return None
+    return DiskCache(None if cache_dir is True else cache_dir)
+
+
+def conic_step_of(model: BeliefModel, cache_dir: str | Path | bool | None = None) -> ConicStep:
+    """The model's step as Clarabel's own data (:mod:`belief_nlp.model.conic_form`),
+    built once per model key: from memory, from the disk cache (``cache_dir``
+    as in :func:`compiled_step`), else built."""
     key = problem_key(model.data, CHI2_MARGIN, "CLARABEL-direct")
     hit = MEMORY.get(key)
     if hit is None:
-        hit = conic_step(model.convex_form)
+        disk = _disk(cache_dir)
+        hit = disk.load(key, kind="conic") if disk is not None else None
+        if not isinstance(hit, ConicStep):
+            hit = conic_step(model.convex_form)
+            if disk is not None:
+                disk.save(key, hit, kind="conic")
         MEMORY.put(key, hit)
     return _for_alpha(hit, model)
 
@@ -200,7 +214,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         # the CVXPY step is compiled only when a step needs it (an answer the
         # active-set step cannot give): most runs never do (0.3-0.7 s saved)
         t0 = time.perf_counter()
-        conic = conic_step_of(model)
+        conic = conic_step_of(model, cache_dir)
         stats["active_set_build_time"] = time.perf_counter() - t0
         step = _LazyStep(conic.layout, build_step)
     else:
@@ -429,9 +443,10 @@ METHOD = register(Method(
         "monotone_tol": Option(1e-7, "relative cost increase that ends the run (non_monotone)", _nonneg),
         "rho": Option(None, "fixed split weight of h2 (None: adapted per pair)",
                       lambda v: None if v is None else _positive(v)),
-        "cache_dir": Option(None, "disk cache of compiled problems: None (memory only), True (user cache), or a folder",
+        "cache_dir": Option(None, "disk cache of compiled problems: None (the process's: set_disk_cache, "
+                                  "off by default), False (memory only), True (user cache), or a folder",
                             lambda v: None if v is None or isinstance(v, (bool, str, Path)) else
-                            "must be None, True or a folder"),
+                            "must be None, True, False or a folder"),
         "constraints": Option(None, "fn(step) -> extra CVXPY constraints for every step (e.g. on step.means())",
                               _callable_or_none),
         "hook": Option(None, "fn(step, iteration) before each solve, parameters set; may return constraints to "

@@ -34,6 +34,7 @@ iterations, restoration iterations, CPU and wall seconds), ``iter_count``,
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import logging
 import os
 import time
@@ -45,7 +46,7 @@ import numpy as np
 
 from ..errors import ValidationError
 from ..model import Layout
-from ..model.cache import MemoryCache, problem_key
+from ..model.cache import MODEL_REVISION, MemoryCache, disk_cache, problem_key
 from ..model.nlp_form import FORMULATIONS, NLPProblem, build_nlp
 from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.policy import DEFAULT_POLICY
@@ -206,8 +207,18 @@ def _solver(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulat
     view, shared = _nlp(problem, formulation, margin, regularisation, floor, cache)
     nlp = backend.form(view)
     # derivatives built for the graph by an earlier solver of this plug-in
-    # (the other stage's) are handed over instead of derived again
+    # (the other stage's, or another process's through the disk cache) are
+    # handed over instead of derived again
     given = shared.get(backend.plugin, {}) if nlp is view else {}
+    source = "built (derivatives shared)"
+    disk = disk_cache() if cache and nlp is view and backend.shared_functions and not given else None
+    if disk is not None:
+        disk_name = _derivatives_key(nlp, backend)
+        loaded = disk.load(disk_name, kind="nlp")
+        if isinstance(loaded, dict) and set(loaded) == set(backend.shared_functions) \
+                and all(isinstance(f, ca.Function) for f in loaded.values()):
+            given, source, disk = loaded, "built (derivatives from disk)", None
+            shared[backend.plugin] = loaded
     recorder = Recorder(nlp, keep=candidates, bar=None, stall=0)
     recorder.log_path = backend.log_file()
     try:
@@ -220,9 +231,23 @@ def _solver(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulat
                               f"{backend.name} refused them: {str(exc).splitlines()[-1][:200]}") from None
     if nlp is view and backend.shared_functions and not given:
         shared[backend.plugin] = _derivatives(solver, backend.shared_functions)
+        if disk is not None and set(shared[backend.plugin]) == set(backend.shared_functions):
+            disk.save(disk_name, shared[backend.plugin], kind="nlp")
     if cache:
         _CACHE.put(key, (nlp, solver, recorder))
-    return nlp, solver, recorder, "built" if not given else "built (derivatives shared)"
+    return nlp, solver, recorder, "built" if not given else source
+
+
+def _derivatives_key(nlp: NLPProblem, backend: NLPBackend) -> str:
+    """Disk-cache name of a graph's derivative functions: a hash of the graph
+    itself (its CasADi serialisation, ~30 ms at K = 20), CasADi's version and
+    the plug-in. The functions are derived from nothing else, so an entry
+    can only be found by the graph it was derived from."""
+    h = hashlib.sha256()
+    for part in (MODEL_REVISION, ca.__version__, backend.plugin, sorted(backend.shared_functions.items())):
+        h.update(repr(part).encode())
+    h.update(ca.Function("nlp", [nlp.z, nlp.p], [nlp.f, nlp.g]).serialize().encode())
+    return h.hexdigest()[:40]
 
 
 def _derivatives(solver: Any, names: dict) -> dict:

@@ -1,9 +1,11 @@
-"""Compiled CCP problems kept in memory and, when asked, on disk.
+"""Compiled problems kept in memory and, when asked, on disk.
 
-Compiling the CVXPY problem of a (scenario, K) costs about a second
-(docs/numerics.md); re-solving it costs milliseconds more than the solver.
-The memory cache keeps the last few; the disk cache (off by default) keeps
-them across processes:
+Building a (scenario, K)'s solver forms costs about a second in a process's
+first call (docs/numerics.md, "Construction cost"): the CVXPY problem of the
+CCP step, the active-set step's Clarabel data, IPOPT's derivative functions.
+The memory cache keeps the last few; the disk cache (off by default:
+:func:`set_disk_cache`, or the environment variable ``BELIEF_NLP_CACHE_DIR``)
+keeps them across processes -- notebook kernels, study workers, CLI runs:
 
 * only in the user's own cache directory (``$XDG_CACHE_HOME/belief_nlp`` or
   ``~/.cache/belief_nlp``) or a folder the user names;
@@ -14,7 +16,10 @@ them across processes:
   an entry that is unreadable, unsigned, signed with another key, not owned by
   the user or writable by others is ignored and rebuilt -- a pickle from
   elsewhere is never loaded;
-* writes are atomic (a temporary file renamed into place).
+* writes are atomic (a temporary file renamed into place); entries are
+  compressed (zlib level 1: IPOPT's Hessian function 6.7 -> 0.85 MB at K = 20);
+* the folder is kept under a size cap (512 MB by default): after a write,
+  the least recently used entries (a load touches its file) are deleted.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ import pickle
 import secrets
 import stat
 import tempfile
+import zlib
 from collections import OrderedDict
 from pathlib import Path
 
@@ -35,13 +41,20 @@ import numpy as np
 
 from .data import ProblemData
 
-__all__ = ["problem_key", "MemoryCache", "DiskCache", "default_cache_dir", "MEMORY"]
+__all__ = ["problem_key", "MemoryCache", "DiskCache", "default_cache_dir", "MEMORY", "set_disk_cache",
+           "disk_cache", "ENV_DIR"]
 
 log = logging.getLogger("belief_nlp.cache")
 
 # bump when the model's structure changes in a way the versions do not show
-# (5: alpha became a parameter of every form and left the key)
-MODEL_REVISION = 5
+# (5: alpha became a parameter of every form and left the key; 6: entries compressed)
+MODEL_REVISION = 6
+
+#: environment variable that switches the disk cache on for a process: a
+#: folder, or "1" for the user's cache folder (:func:`default_cache_dir`)
+ENV_DIR = "BELIEF_NLP_CACHE_DIR"
+#: default size cap of a disk cache folder
+MAX_BYTES = 512 * 2**20
 
 
 def problem_key(D: ProblemData, chi2_margin: float, solver: str, proximal: float = 0.0) -> str:
@@ -120,12 +133,13 @@ def _private(path: Path) -> bool:
 
 
 class DiskCache:
-    """Signed pickles of compiled problems in one folder (see module doc)."""
+    """Signed, compressed pickles of compiled problems in one folder (see
+    module doc). ``kind`` names an entry's type in its file name
+    (``<key>.<kind>.pkl``)."""
 
-    suffix = ".ccp.pkl"
-
-    def __init__(self, directory: str | Path | None = None):
-        self.dir = Path(directory) if directory is not None else default_cache_dir()
+    def __init__(self, directory: str | Path | None = None, max_bytes: int = MAX_BYTES):
+        self.dir = Path(directory).expanduser() if directory is not None else default_cache_dir()
+        self.max_bytes = int(max_bytes)
 
     def _key(self, create: bool) -> bytes | None:
         kf = self.dir / "hmac.key"
@@ -147,9 +161,9 @@ class DiskCache:
             f.write(key)
         return key
 
-    def load(self, name: str):
+    def load(self, name: str, kind: str = "ccp"):
         """The entry, or None when missing, unreadable, foreign or tampered with."""
-        path = self.dir / (name + self.suffix)
+        path = self.dir / f"{name}.{kind}.pkl"
         try:
             if not path.exists():
                 return None
@@ -161,24 +175,112 @@ class DiskCache:
             if not hmac.compare_digest(sig, hmac.new(key, payload, hashlib.sha256).digest()):
                 log.warning("ignoring cache entry %s: bad signature", path.name)
                 return None
-            return pickle.loads(payload)  # noqa: S301 - signed by this user's own key (module doc)
+            value = pickle.loads(zlib.decompress(payload))  # noqa: S301 - signed by this user's own key (module doc)
+            os.utime(path)              # recently used: the size cap evicts the others first
+            return value
         except Exception as exc:  # an unreadable entry is rebuilt, never fatal
             log.warning("ignoring cache entry %s: %s", path.name, exc)
             return None
 
-    def save(self, name: str, value) -> Path | None:
-        """Write atomically; returns the path (None when caching is not possible)."""
+    def save(self, name: str, value, kind: str = "ccp") -> Path | None:
+        """Write atomically, then keep the folder under its size cap; returns
+        the path (None when caching is not possible)."""
         try:
             key = self._key(create=True)
             if key is None:
                 return None
-            payload = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
-            fd, tmp = tempfile.mkstemp(dir=self.dir, prefix=".tmp-", suffix=self.suffix)
+            payload = zlib.compress(pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL), 1)
+            fd, tmp = tempfile.mkstemp(dir=self.dir, prefix=".tmp-", suffix=".pkl")
             with os.fdopen(fd, "wb") as f:
                 f.write(hmac.new(key, payload, hashlib.sha256).digest() + payload)
-            final = self.dir / (name + self.suffix)
+            final = self.dir / f"{name}.{kind}.pkl"
             os.replace(tmp, final)
+            self._evict(keep=final)
             return final
         except Exception as exc:
             log.warning("could not write the problem cache in %s: %s", self.dir, exc)
             return None
+
+    def entries(self) -> list[Path]:
+        """The folder's entries (every kind)."""
+        return [p for p in self.dir.glob("*.pkl") if not p.name.startswith(".tmp-")]
+
+    def _evict(self, keep: Path) -> None:
+        """Delete the least recently used entries (file mtime: written or
+        loaded) until the folder is within ``max_bytes``; never ``keep``."""
+        sized = []
+        for p in self.entries():
+            try:
+                st = p.stat()
+            except OSError:             # removed meanwhile by another process
+                continue
+            sized.append((st.st_mtime, st.st_size, p))
+        total = sum(size for _, size, _ in sized)
+        for _, size, p in sorted(sized, key=lambda t: t[0]):
+            if total <= self.max_bytes:
+                break
+            if p == keep:
+                continue
+            try:
+                p.unlink()
+                total -= size
+            except OSError:
+                pass
+
+
+_DISK: dict = {"set": False, "cache": None}
+
+
+def set_disk_cache(where: bool | str | Path | None = True, max_mb: float = MAX_BYTES / 2**20) -> DiskCache | None:
+    """Keep compiled problems on disk across processes, or stop doing so.
+
+    What a process's first call builds (IPOPT's derivative functions, the
+    active-set step's Clarabel data, the CVXPY problem of the CCP step) is
+    then loaded by later processes -- notebook kernels, study workers, CLI
+    runs -- instead of built (measured: docs/numerics.md, "Construction cost").
+
+    Parameters
+    ----------
+    where : bool, str, Path or None, optional
+        True for the user's cache folder (``$XDG_CACHE_HOME/belief_nlp`` or
+        ``~/.cache/belief_nlp``), a folder, or False / None to switch the disk
+        cache off (the memory cache stays). Without a call, the environment
+        variable ``BELIEF_NLP_CACHE_DIR`` decides (a folder, or "1" for the
+        user's cache folder; unset, empty or "0": off).
+    max_mb : float, optional
+        Size cap of the folder in MB; the least recently used entries are
+        deleted first.
+
+    Returns
+    -------
+    DiskCache or None
+        The process's disk cache from now on (None when off).
+
+    Raises
+    ------
+    ValidationError
+        For a ``where`` or ``max_mb`` of the wrong kind.
+    """
+    from ..errors import ValidationError
+
+    if not isinstance(max_mb, (int, float)) or isinstance(max_mb, bool) or not max_mb > 0:
+        raise ValidationError("max_mb", f"must be a number of megabytes > 0, got {max_mb!r}")
+    if where is None or where is False:
+        cache = None
+    elif where is True:
+        cache = DiskCache(None, int(max_mb * 2**20))
+    elif isinstance(where, (str, Path)) and str(where).strip():
+        cache = DiskCache(where, int(max_mb * 2**20))
+    else:
+        raise ValidationError("where", f"must be True, False, None or a folder, got {where!r}")
+    _DISK.update(set=True, cache=cache)
+    return cache
+
+
+def disk_cache() -> DiskCache | None:
+    """The process's disk cache (None: off); see :func:`set_disk_cache`."""
+    if not _DISK["set"]:
+        value = os.environ.get(ENV_DIR, "").strip()
+        _DISK.update(set=True, cache=None if value.lower() in ("", "0", "off", "false", "no") else
+                     DiskCache(None if value == "1" else value))
+    return _DISK["cache"]

@@ -1,0 +1,151 @@
+"""The disk cache of compiled problems across processes (model/cache.py):
+IPOPT's derivative functions and the active-set step's Clarabel data are
+loaded instead of built, give the very same answers, are found only by the
+problem they were built for, and the folder stays under its size cap."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import belief_nlp as bn
+from belief_nlp.errors import ValidationError
+from belief_nlp.methods import nlp_engine
+from belief_nlp.model import cache as cache_mod
+from belief_nlp.model.cache import MEMORY, DiskCache, disk_cache, set_disk_cache
+
+from conftest import paper_multi_path_pair
+
+
+@pytest.fixture
+def small():
+    return paper_multi_path_pair(steps_per_segment=2)          # K = 10
+
+
+@pytest.fixture
+def fresh():
+    """Memory caches empty (as in a new process) and the process's disk
+    cache setting restored afterwards."""
+    saved = dict(cache_mod._DISK)
+    nlp_engine.clear_cache()
+    MEMORY.clear()
+    yield
+    cache_mod._DISK.clear()
+    cache_mod._DISK.update(saved)
+    nlp_engine.clear_cache()
+    MEMORY.clear()
+
+
+def _forget():
+    nlp_engine.clear_cache()
+    MEMORY.clear()
+
+
+def test_a_second_process_loads_what_the_first_built_and_gets_the_same_answer(small, fresh, tmp_path):
+    sc, path = small
+    set_disk_cache(False)
+    reference = bn.smooth(sc, path, alpha=0.1)                 # no disk cache at all
+    _forget()
+    folder = tmp_path / "cache"
+    set_disk_cache(folder)
+    first = bn.smooth(sc, path, alpha=0.1)
+    kinds = sorted(p.name.split(".")[1] for p in DiskCache(folder).entries())
+    assert kinds == ["conic", "nlp"]
+    assert all(oct(p.stat().st_mode & 0o777) == "0o600" for p in DiskCache(folder).entries())
+    assert first.stats["ipopt"]["build"] == "built"
+    _forget()                                                   # as a new process would start
+    second = bn.smooth(sc, path, alpha=1.0)                     # another alpha: the same entries serve it
+    _forget()
+    third = bn.smooth(sc, path, alpha=0.1)
+    assert second.stats["ipopt"]["build"] == third.stats["ipopt"]["build"] == "built (derivatives from disk)"
+    for res in (first, third):
+        assert res.safe and bn.verify(sc, res.path).safe
+        assert res.cost == reference.cost and res.nit == reference.nit
+        np.testing.assert_array_equal(res.path.x, reference.path.x)
+        np.testing.assert_array_equal(res.path.S, reference.path.S)
+    assert second.safe and second.cost <= second.initial_cost
+
+
+def test_an_entry_is_found_only_by_the_problem_it_was_built_for(small, fresh, tmp_path):
+    sc, path = small
+    set_disk_cache(tmp_path)
+    bn.smooth(sc, path, alpha=0.1, method="ipopt")
+    assert len(DiskCache(tmp_path).entries()) == 1
+    _forget()
+    other = bn.smooth(sc, path, K=12, alpha=0.1, method="ipopt")     # another graph
+    assert other.stats["build"] == "built" and other.safe
+    _forget()
+    reg = bn.smooth(sc, path, alpha=0.1, method="ipopt", regularisation=2e-4)   # another objective
+    assert reg.stats["build"] == "built"
+    assert len(DiskCache(tmp_path).entries()) == 3
+    # the margin is in the rows' bounds, not the graph: the same derivatives
+    # serve it, and the answer is the one built from scratch
+    _forget()
+    margin = bn.smooth(sc, path, alpha=0.1, method="ipopt", margin=2e-6)
+    assert margin.stats["build"] == "built (derivatives from disk)"
+    set_disk_cache(False)
+    _forget()
+    scratch = bn.smooth(sc, path, alpha=0.1, method="ipopt", margin=2e-6)
+    assert scratch.stats["build"] == "built" and scratch.cost == margin.cost
+
+
+def test_a_tampered_entry_is_rebuilt_not_loaded(small, fresh, tmp_path):
+    sc, path = small
+    set_disk_cache(tmp_path)
+    first = bn.smooth(sc, path, alpha=0.1, method="ipopt")
+    (entry,) = DiskCache(tmp_path).entries()
+    blob = bytearray(entry.read_bytes())
+    blob[-10] ^= 0xFF
+    entry.write_bytes(bytes(blob))
+    _forget()
+    again = bn.smooth(sc, path, alpha=0.1, method="ipopt")
+    assert again.stats["build"] == "built" and again.cost == first.cost
+
+
+def test_the_folder_stays_under_its_cap_and_keeps_recently_used_entries(tmp_path):
+    disk = DiskCache(tmp_path, max_bytes=25_000)
+    rng = np.random.default_rng(0)
+    blobs = {name: rng.random(1000) for name in "abc"}           # ~8 kB each (random: incompressible)
+    for i, name in enumerate("ab"):
+        disk.save(name, blobs[name], kind="test")
+        os.utime(tmp_path / f"{name}.test.pkl", (1e9 + i, 1e9 + i))   # a older than b
+    assert disk.load("a", kind="test") is not None                     # a used now: b is the oldest
+    disk.save("c", blobs["c"], kind="test")
+    disk.save("d", blobs["a"], kind="test")
+    names = sorted(p.name for p in disk.entries())
+    assert "b.test.pkl" not in names and "d.test.pkl" in names
+    assert sum(p.stat().st_size for p in disk.entries()) <= 25_000
+    np.testing.assert_array_equal(disk.load("d", kind="test"), blobs["a"])
+
+
+def test_the_environment_variable_switches_it_on_and_bad_settings_are_refused(fresh, tmp_path, monkeypatch):
+    for value, expect in ((str(tmp_path), tmp_path), ("1", cache_mod.default_cache_dir()), ("0", None), ("", None)):
+        monkeypatch.setenv(cache_mod.ENV_DIR, value)
+        cache_mod._DISK.update(set=False, cache=None)
+        got = disk_cache()
+        assert (got is None) if expect is None else (got.dir == expect)
+    with pytest.raises(ValidationError, match="where"):
+        set_disk_cache(3)
+    with pytest.raises(ValidationError, match="max_mb"):
+        set_disk_cache(tmp_path, max_mb=0)
+    assert set_disk_cache(None) is None and disk_cache() is None
+
+
+def test_the_derivative_key_is_the_same_in_a_fresh_process(small, fresh, tmp_path):
+    """The entry's name is a hash of the graph's serialisation: a second
+    process must build the identical graph, or every lookup would miss."""
+    sc, path = small
+    set_disk_cache(tmp_path)
+    bn.smooth(sc, path, alpha=0.1, method="ipopt")
+    code = ("import sys; sys.path.insert(0, 'tests'); import belief_nlp as bn; from conftest import paper_multi_path_pair;"
+            f"bn.set_disk_cache({str(tmp_path)!r}); sc, p = paper_multi_path_pair(steps_per_segment=2);"
+            "print(bn.smooth(sc, p, alpha=0.1, method='ipopt').stats['build'])")
+    env = {**os.environ, "PYTHONHASHSEED": "123"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300,
+                         cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "built (derivatives from disk)"
