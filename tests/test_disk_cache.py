@@ -6,9 +6,11 @@ problem they were built for, and the folder stays under its size cap."""
 from __future__ import annotations
 
 import os
+import pickle
 import subprocess
 import sys
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -17,6 +19,8 @@ from belief_nlp.errors import ValidationError
 from belief_nlp.methods import nlp_engine
 from belief_nlp.model import cache as cache_mod
 from belief_nlp.model.cache import MEMORY, DiskCache, disk_cache, set_disk_cache
+from belief_nlp.model import BeliefModel
+from belief_nlp.model.nlp_form import build_nlp
 
 from conftest import paper_multi_path_pair
 
@@ -54,7 +58,7 @@ def test_a_second_process_loads_what_the_first_built_and_gets_the_same_answer(sm
     set_disk_cache(folder)
     first = bn.smooth(sc, path, alpha=0.1)
     kinds = sorted(p.name.split(".")[1] for p in DiskCache(folder).entries())
-    assert kinds == ["conic", "nlp"]
+    assert kinds == ["conic", "graph", "nlp"]
     assert all(oct(p.stat().st_mode & 0o777) == "0o600" for p in DiskCache(folder).entries())
     assert first.stats["ipopt"]["build"] == "built"
     _forget()                                                   # as a new process would start
@@ -74,14 +78,14 @@ def test_an_entry_is_found_only_by_the_problem_it_was_built_for(small, fresh, tm
     sc, path = small
     set_disk_cache(tmp_path)
     bn.smooth(sc, path, alpha=0.1, method="ipopt")
-    assert len(DiskCache(tmp_path).entries()) == 1
+    assert len(DiskCache(tmp_path).entries()) == 2                 # the graph and its derivatives
     _forget()
     other = bn.smooth(sc, path, K=12, alpha=0.1, method="ipopt")     # another graph
     assert other.stats["build"] == "built" and other.safe
     _forget()
     reg = bn.smooth(sc, path, alpha=0.1, method="ipopt", regularisation=2e-4)   # another objective
     assert reg.stats["build"] == "built"
-    assert len(DiskCache(tmp_path).entries()) == 3
+    assert len(DiskCache(tmp_path).entries()) == 6
     # the margin is in the rows' bounds, not the graph: the same derivatives
     # serve it, and the answer is the one built from scratch
     _forget()
@@ -97,13 +101,34 @@ def test_a_tampered_entry_is_rebuilt_not_loaded(small, fresh, tmp_path):
     sc, path = small
     set_disk_cache(tmp_path)
     first = bn.smooth(sc, path, alpha=0.1, method="ipopt")
-    (entry,) = DiskCache(tmp_path).entries()
+    (entry,) = [p for p in DiskCache(tmp_path).entries() if p.name.endswith(".nlp.pkl")]
     blob = bytearray(entry.read_bytes())
     blob[-10] ^= 0xFF
     entry.write_bytes(bytes(blob))
     _forget()
     again = bn.smooth(sc, path, alpha=0.1, method="ipopt")
     assert again.stats["build"] == "built" and again.cost == first.cost
+
+
+def test_an_nlp_rebuilt_from_its_stored_graph_is_the_same_function(small):
+    sc, path = small
+    model = BeliefModel(sc, 10, 0.3)
+    fresh_nlp = build_nlp(model, "logchol")
+    stored = pickle.loads(pickle.dumps(fresh_nlp.graph))           # as the disk cache keeps it
+    again = build_nlp(model, "logchol", graph=stored)
+    rng = np.random.default_rng(1)
+    z = fresh_nlp.lbz.copy()
+    z[~np.isfinite(z)] = 0.0
+    z += rng.random(z.size)
+    pv = np.concatenate([rng.random(fresh_nlp.p.numel() - 2), [0.3, 1.0]])
+    fa = ca.Function("a", [fresh_nlp.z, fresh_nlp.p], [fresh_nlp.f, fresh_nlp.g])(z, pv)
+    fb = ca.Function("b", [again.z, again.p], [again.f, again.g])(z, pv)
+    for u, v in zip(fa, fb):
+        np.testing.assert_array_equal(np.array(u), np.array(v))
+    np.testing.assert_array_equal(fresh_nlp.lbg, again.lbg)
+    np.testing.assert_array_equal(fresh_nlp.lbz, again.lbz)
+    assert fresh_nlp.info == again.info
+    np.testing.assert_array_equal(np.array(fresh_nlp.margins(z)[0]), np.array(again.margins(z)[0]))
 
 
 def test_the_folder_stays_under_its_cap_and_keeps_recently_used_entries(tmp_path):

@@ -183,7 +183,14 @@ def _nlp(problem: SmoothingProblem, formulation: str, margin: float, regularisat
     key = _base_key(problem, formulation, margin, regularisation)
     entry = _GRAPHS.get(key) if cache else None
     if entry is None:
-        entry = (build_nlp(problem.model, formulation, margin=margin, regularisation=regularisation, floor=floor), {})
+        # the graph's symbolic part from another process (disk cache), else built and kept there
+        disk = disk_cache() if cache else None
+        graph = disk.load(key, kind="graph") if disk is not None else None
+        valid = isinstance(graph, dict) and isinstance(graph.get("function"), ca.Function)
+        entry = (build_nlp(problem.model, formulation, margin=margin, regularisation=regularisation, floor=floor,
+                           graph=graph if valid else None), {})
+        if disk is not None and not valid:
+            disk.save(key, entry[0].graph, kind="graph")
         if cache:
             _GRAPHS.put(key, entry)
     base, shared = entry
