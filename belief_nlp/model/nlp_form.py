@@ -134,6 +134,23 @@ class NLPProblem:
         return z0, lbz, ubz
 
 
+def _dims(model: BeliefModel, formulation: str) -> tuple:
+    """Shapes both parts of :func:`build_nlp` read: the lower triangle's
+    index pairs and length, the real faces per hazard and their offsets in a
+    step's certificates, their count, whether Q is lifted, whether the
+    formulation is one of the "cholesky" / "logchol" pair, whether a budget
+    is set. ("cholesky" and "logchol" are one expression graph: L_ii =
+    s exp(s w) + (1 - s) w is exp(w) at s = 1 and w at s = 0, bit for bit
+    and so are its derivatives, so the two stages share one NLP and its
+    derivatives: NLPProblem.variant.)"""
+    D = model.data
+    tri = _tri_index(D.d)
+    nf = D.face_mask.sum(axis=1).astype(int)
+    offs = np.concatenate([[0], np.cumsum(nf)])
+    return (tri, len(tri), nf, offs, int(offs[-1]), formulation in ("cholesky", "logchol", "minors"),
+            formulation in ("cholesky", "logchol"), D.budget is not None)
+
+
 def _symbolic_graph(model: BeliefModel, formulation: str, margin: float, regularisation: float) -> dict:
     """The symbolic part of :func:`build_nlp` (most of its time): the
     expressions of the objective, the rows and the cost parts as one CasADi
@@ -141,14 +158,7 @@ def _symbolic_graph(model: BeliefModel, formulation: str, margin: float, regular
     serialises the function), so the disk cache can keep it."""
     D = model.data
     K, d, J, F = D.K, D.d, D.J, D.F
-    tri = _tri_index(d)
-    t = len(tri)
-    nf = D.face_mask.sum(axis=1).astype(int)
-    offs = np.concatenate([[0], np.cumsum(nf)])
-    n_lam = int(offs[-1])
-    lift_q = formulation in ("cholesky", "logchol", "minors")
-    pair = formulation in ("cholesky", "logchol")
-    budget = D.budget is not None
+    tri, t, nf, offs, n_lam, lift_q, pair, budget = _dims(model, formulation)
     switch = ca.SX.sym("logchol")
 
     X = ca.SX.sym("x", d, K)
@@ -301,18 +311,8 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
         raise ValidationError("formulation", f"must be one of {FORMULATIONS}, got {formulation!r}")
     D = model.data
     K, d, J, F = D.K, D.d, D.J, D.F
-    tri = _tri_index(d)
-    t = len(tri)
+    tri, t, nf, offs, n_lam, lift_q, pair, budget = _dims(model, formulation)
     diag_pos = [tri.index((i, i)) for i in range(d)]
-    nf = D.face_mask.sum(axis=1).astype(int)
-    offs = np.concatenate([[0], np.cumsum(nf)])
-    n_lam = int(offs[-1])
-    lift_q = formulation in ("cholesky", "logchol", "minors")
-    # "cholesky" and "logchol" are one expression graph: L_ii = s exp(s w) + (1 - s) w
-    # is exp(w) at s = 1 and w at s = 0, bit for bit (and so are its derivatives),
-    # so the two stages share one NLP and its derivatives (NLPProblem.variant)
-    pair = formulation in ("cholesky", "logchol")
-    budget = D.budget is not None
     if graph is None:
         graph = _symbolic_graph(model, formulation, margin, regularisation)
     z, p = graph["function"].sx_in()
