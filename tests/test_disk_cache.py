@@ -174,3 +174,22 @@ def test_the_derivative_key_is_the_same_in_a_fresh_process(small, fresh, tmp_pat
                          cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().splitlines()[-1] == "built (derivatives from disk)"
+
+
+def test_the_cli_shows_and_clears_a_cache_folder(small, fresh, tmp_path, capsys):
+    from belief_nlp.cli import EXIT_BAD_INPUT, EXIT_OK, main
+
+    sc, path = small
+    set_disk_cache(tmp_path)
+    bn.smooth(sc, path, alpha=0.1)
+    sizes = DiskCache(tmp_path).summary()
+    assert main(["cache", "--dir", str(tmp_path)]) == EXIT_OK
+    out = capsys.readouterr().out
+    assert f"{tmp_path}: 3 entries" in out
+    for kind, (n, _) in sizes.items():
+        assert any(line.split()[:2] == [kind, str(n)] for line in out.splitlines()), (kind, out)
+    assert main(["cache", "--dir", str(tmp_path), "--clear"]) == EXIT_OK
+    assert "deleted 3 entries" in capsys.readouterr().out
+    assert DiskCache(tmp_path).entries() == [] and (tmp_path / "hmac.key").exists()
+    assert main(["cache", "--bogus"]) == EXIT_BAD_INPUT
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1

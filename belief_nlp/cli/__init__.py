@@ -10,6 +10,7 @@ Minimum-sensing path planning in Gaussian belief space:
   demo       the paper's experiment on paper-multi: Figs. 2-4 and GIFs
   study      run a solver-comparison study (process pool or Dask), report or export it
   mpc        run a receding-horizon belief MPC (casadi.Opti, do-mpc or rockit)
+  cache      show or clear the disk cache of compiled problems
 
 Every subcommand takes ``--help``. Scenarios are built-in names (see
 ``belief-nlp scenarios``) or TOML/JSON files (docs/scenario_schema.md).
@@ -26,7 +27,8 @@ The package, one file per concern: ``parser`` (argparse machinery, value
 types, shared option groups), ``common`` (exit codes, the smoothing method
 names, the run object, loading and saving, logging, one-line messages),
 ``figures`` (shared figure helpers), and one module per subcommand --
-``scenarios``, ``plan``, ``smooth``, ``compare``, ``methods``, ``demo`` -- each with its
+``scenarios``, ``plan``, ``smooth``, ``compare``, ``methods``, ``demo``, ``study``, ``mpc``,
+``cache`` -- each with its
 ``add_parser`` and its command.
 """
 
@@ -37,7 +39,7 @@ import sys
 from typing import Sequence
 
 from ..errors import BeliefNLPError, ValidationError
-from . import compare, demo, methods, mpc, plan, scenarios, smooth, study
+from . import cache, compare, demo, methods, mpc, plan, scenarios, smooth, study
 from .common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, FAILED_STATUSES, PROG, _one_line,
                      _Run, _setup_logging, smoothing_methods)  # noqa: F401 - smoothing_methods: public
 from .demo import DEMO_MAX_RADIUS  # noqa: F401 - public, as before the split
@@ -47,7 +49,7 @@ from .parser import _Parser, _UsageError
 __all__ = ["main", "build_parser", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_INTERNAL", "FAILED_STATUSES"]
 
 #: The subcommands, in the order ``belief-nlp --help`` lists them.
-_COMMANDS = (scenarios, plan, smooth, compare, methods, demo, study, mpc)
+_COMMANDS = (scenarios, plan, smooth, compare, methods, demo, study, mpc, cache)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -205,6 +205,30 @@ class DiskCache:
         """The folder's entries (every kind)."""
         return [p for p in self.dir.glob("*.pkl") if not p.name.startswith(".tmp-")]
 
+    def summary(self) -> dict[str, tuple[int, int]]:
+        """{kind: (entries, bytes)} of the folder."""
+        out: dict[str, tuple[int, int]] = {}
+        for p in self.entries():
+            kind = p.name.split(".")[-2]
+            n, size = out.get(kind, (0, 0))
+            try:
+                out[kind] = (n + 1, size + p.stat().st_size)
+            except OSError:
+                pass
+        return out
+
+    def clear(self) -> tuple[int, int]:
+        """Delete every entry (the key stays); returns (entries, bytes) deleted."""
+        n = size = 0
+        for p in self.entries():
+            try:
+                st = p.stat()
+                p.unlink()
+                n, size = n + 1, size + st.st_size
+            except OSError:
+                pass
+        return n, size
+
     def _evict(self, keep: Path) -> None:
         """Delete the least recently used entries (file mtime: written or
         loaded) until the folder is within ``max_bytes``; never ``keep``."""

@@ -1,0 +1,44 @@
+"""``belief-nlp cache``: show or clear the disk cache of compiled problems."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .common import EXIT_OK, _Run
+from .parser import _output_args
+
+
+def add_parser(sub) -> None:
+    """Add the ``cache`` subcommand to the subparsers ``sub``."""
+    cp = sub.add_parser(
+        "cache", help="show or clear the disk cache of compiled problems",
+        description="The disk cache keeps what a process builds for a (scenario, K) -- the NLP graph, IPOPT's "
+                    "derivative functions, the CCP step's data -- for later processes. It is off unless "
+                    "BELIEF_NLP_CACHE_DIR is set (a folder, or 1 for the user's cache folder) or a program calls "
+                    "belief_nlp.set_disk_cache. Without --dir this shows the folder BELIEF_NLP_CACHE_DIR names, "
+                    "else the user's cache folder: its entries by kind and size; --clear deletes them.",
+        epilog="Examples:\n  belief-nlp cache\n  belief-nlp cache --dir /scratch/bn_cache --clear")
+    cp.add_argument("--dir", type=Path, default=None, metavar="DIR", help="the cache folder to show or clear")
+    cp.add_argument("--clear", action="store_true", help="delete every entry (the signing key stays)")
+    _output_args(cp, out_default=None)
+    cp.set_defaults(func=_cmd_cache)
+
+
+def _cmd_cache(run: _Run) -> int:
+    from ..model.cache import DiskCache, disk_cache
+
+    a = run.args
+    disk = DiskCache(a.dir) if a.dir is not None else (disk_cache() or DiskCache())
+    state = "on (BELIEF_NLP_CACHE_DIR)" if a.dir is None and disk_cache() is not None else \
+        "off in this environment (BELIEF_NLP_CACHE_DIR unset)" if a.dir is None else "given by --dir"
+    if a.clear:
+        n, size = disk.clear()
+        print(f"{disk.dir}: deleted {n} entries ({size / 2**20:.1f} MB)")
+        return EXIT_OK
+    summary = disk.summary()
+    total = sum(size for _, size in summary.values())
+    print(f"{disk.dir}: {sum(n for n, _ in summary.values())} entries, {total / 2**20:.1f} MB "
+          f"(cap {disk.max_bytes / 2**20:.0f} MB); disk cache {state}")
+    for kind, (n, size) in sorted(summary.items()):
+        print(f"  {kind:8s} {n:5d} entries {size / 2**20:8.1f} MB")
+    return EXIT_OK
