@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import os
 
-import numpy as np
-import pytest
-from hypothesis import settings
+# the suite is hermetic: no disk cache from the developer's environment (the
+# tests of the disk cache switch it on in their own folders)
+os.environ["BELIEF_NLP_CACHE_DIR"] = "0"
 
-import belief_nlp as bn
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from hypothesis import settings  # noqa: E402
+
+import belief_nlp as bn  # noqa: E402
 
 # CI runs the same examples every time (reproducible verdicts); local runs
 # keep exploring new ones, which is how the sliver cases of 3-D hulls were found.

@@ -35,11 +35,16 @@ def fresh():
     """Memory caches empty (as in a new process) and the process's disk
     cache setting restored afterwards."""
     saved = dict(cache_mod._DISK)
+    env = os.environ.get(cache_mod.ENV_DIR)
     nlp_engine.clear_cache()
     MEMORY.clear()
     yield
     cache_mod._DISK.clear()
     cache_mod._DISK.update(saved)
+    if env is None:
+        os.environ.pop(cache_mod.ENV_DIR, None)
+    else:
+        os.environ[cache_mod.ENV_DIR] = env
     nlp_engine.clear_cache()
     MEMORY.clear()
 
@@ -158,6 +163,7 @@ def test_the_environment_variable_switches_it_on_and_bad_settings_are_refused(fr
     with pytest.raises(ValidationError, match="max_mb"):
         set_disk_cache(tmp_path, max_mb=0)
     assert set_disk_cache(None) is None and disk_cache() is None
+    assert os.environ[cache_mod.ENV_DIR] == "0"
 
 
 def test_the_derivative_key_is_the_same_in_a_fresh_process(small, fresh, tmp_path):
@@ -166,9 +172,11 @@ def test_the_derivative_key_is_the_same_in_a_fresh_process(small, fresh, tmp_pat
     sc, path = small
     set_disk_cache(tmp_path)
     bn.smooth(sc, path, alpha=0.1, method="ipopt")
-    code = ("import sys; sys.path.insert(0, 'tests'); import belief_nlp as bn; from conftest import paper_multi_path_pair;"
-            f"bn.set_disk_cache({str(tmp_path)!r}); sc, p = paper_multi_path_pair(steps_per_segment=2);"
-            "print(bn.smooth(sc, p, alpha=0.1, method='ipopt').stats['build'])")
+    # set_disk_cache also set BELIEF_NLP_CACHE_DIR: the child process finds the folder by it
+    assert os.environ[cache_mod.ENV_DIR] == str(tmp_path.resolve())
+    path_file = path.save(tmp_path / "path.json")
+    code = ("import belief_nlp as bn;"
+            f"print(bn.smooth('paper-multi', {str(path_file)!r}, alpha=0.1, method='ipopt').stats['build'])")
     env = {**os.environ, "PYTHONHASHSEED": "123"}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300,
                          cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

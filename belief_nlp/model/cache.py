@@ -278,7 +278,10 @@ def set_disk_cache(where: bool | str | Path | None = True, max_mb: float = MAX_B
     Returns
     -------
     DiskCache or None
-        The process's disk cache from now on (None when off).
+        The process's disk cache from now on (None when off). The setting
+        is also written to ``BELIEF_NLP_CACHE_DIR``, so processes started
+        afterwards -- a study's worker pool, a Dask ``LocalCluster`` -- share it
+        (the size cap stays at their default).
 
     Raises
     ------
@@ -290,14 +293,17 @@ def set_disk_cache(where: bool | str | Path | None = True, max_mb: float = MAX_B
     if not isinstance(max_mb, (int, float)) or isinstance(max_mb, bool) or not max_mb > 0:
         raise ValidationError("max_mb", f"must be a number of megabytes > 0, got {max_mb!r}")
     if where is None or where is False:
-        cache = None
+        cache, env = None, "0"
     elif where is True:
-        cache = DiskCache(None, int(max_mb * 2**20))
+        cache, env = DiskCache(None, int(max_mb * 2**20)), "1"
     elif isinstance(where, (str, Path)) and str(where).strip():
         cache = DiskCache(where, int(max_mb * 2**20))
+        env = str(cache.dir.resolve())
     else:
         raise ValidationError("where", f"must be True, False, None or a folder, got {where!r}")
     _DISK.update(set=True, cache=cache)
+    # processes started from now on (a study's worker pool, a Dask LocalCluster) read the variable
+    os.environ[ENV_DIR] = env
     return cache
 
 
