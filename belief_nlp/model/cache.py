@@ -11,7 +11,8 @@ keeps them across processes -- notebook kernels, study workers, CLI runs:
   ``~/.cache/belief_nlp``) or a folder the user names;
 * an entry's name is a hash of everything that shapes the problem (the
   scaled scenario data, the margin, the solver, the versions of belief_nlp,
-  cvxpy and casadi), so a stale entry is never found;
+  cvxpy and casadi, a hash of this model package's source files), so a
+  stale entry is never found, not even from a development checkout;
 * every entry is signed with an HMAC key kept in that folder (mode 0600);
   an entry that is unreadable, unsigned, signed with another key, not owned by
   the user or writable by others is ignored and rebuilt -- a pickle from
@@ -66,7 +67,8 @@ def problem_key(D: ProblemData, chi2_margin: float, solver: str, proximal: float
     from .._version import __version__
 
     h = hashlib.sha256()
-    for part in (MODEL_REVISION, __version__, _cvxpy_version(), casadi.__version__, solver, repr(chi2_margin),
+    for part in (MODEL_REVISION, __version__, _source_digest(), _cvxpy_version(), casadi.__version__, solver,
+                 repr(chi2_margin),
                  *((repr(proximal),) if proximal else ()),
                  D.sigma, D.chi2, D.chi2_target, D.budget, D.continuous, D.K, D.d, D.hazard_names):
         h.update(repr(part).encode())
@@ -75,6 +77,18 @@ def problem_key(D: ProblemData, chi2_margin: float, solver: str, proximal: float
         h.update(str(a.dtype).encode() + str(a.shape).encode())
         h.update(a.tobytes())
     return h.hexdigest()[:40]
+
+
+@functools.lru_cache(maxsize=1)
+def _source_digest() -> str:
+    """Hash of the model package's own source files: what the compiled forms
+    are generated from. A development checkout whose model code changed
+    without a version bump then never finds the entries of the old code
+    (read once a process, ~1 ms)."""
+    h = hashlib.sha256()
+    for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
+        h.update(path.name.encode() + path.read_bytes())
+    return h.hexdigest()[:16]
 
 
 @functools.lru_cache(maxsize=1)
