@@ -22,8 +22,11 @@ __all__ = ["BeliefModel"]
 
 
 def _hcat(M: np.ndarray) -> np.ndarray:
-    """(n, r, c) -> r x (n c): the column layout of CasADi's Function.map."""
-    return np.concatenate(list(M), axis=1) if M.shape[0] else np.zeros(M.shape[1:2] + (0,))
+    """(n, r, c) -> r x (n c): the column layout of CasADi's Function.map
+    (block i is M[i]; one reshape, not a concatenation of n pieces)."""
+    M = np.asarray(M)
+    n, r, c = M.shape
+    return np.swapaxes(M, 0, 1).reshape(r, n * c)
 
 
 class BeliefModel:
@@ -71,6 +74,16 @@ class BeliefModel:
                                     ["x", "Y", "a", "b"], ["margin"])
         self.f_kalman = ca.Function("kalman_residual", [Q, Y], [terms.kalman_residual(Q, Y, ca.DM(D.W))],
                                     ["Q", "Y_prev"], ["residual"])
+        self._maps: dict[tuple[str, int], ca.Function] = {}
+
+    def _map(self, f: ca.Function, n: int) -> ca.Function:
+        """``f.map(n)``, built once per model (a call evaluates the model's
+        functions a dozen times, each map was built anew: ~0.1 ms each)."""
+        key = (f.name(), n)
+        fn = self._maps.get(key)
+        if fn is None:
+            fn = self._maps[key] = f.map(n)
+        return fn
 
     @cached_property
     def convex_form(self):
@@ -84,7 +97,7 @@ class BeliefModel:
         """(total, control, information) in SI units: sum ||dx||^2 (m^2) and nats."""
         D = self.data
         K = D.K
-        c, i = self.f_step.map(K)(z.x[:-1].T, z.x[1:].T, _hcat(z.Y[1:]), _hcat(z.Q[1:]))
+        c, i = self._map(self.f_step, K)(z.x[:-1].T, z.x[1:].T, _hcat(z.Y[1:]), _hcat(z.Q[1:]))
         control = float(D.sigma**2 * np.sum(c.full()))
         info = float(np.sum(i.full()))
         return control + D.alpha * info, control, info
@@ -97,7 +110,7 @@ class BeliefModel:
             return np.zeros((0, J))
         m = n * J
         A = np.tile(D.A, (n, 1, 1))
-        out = f.map(m)(np.repeat(xs, J, axis=0).T, _hcat(np.repeat(Ms, J, axis=0)), lam.reshape(m, D.F).T,
+        out = self._map(f, m)(np.repeat(xs, J, axis=0).T, _hcat(np.repeat(Ms, J, axis=0)), lam.reshape(m, D.F).T,
                        _hcat(A), np.tile(D.b, (n, 1)).T)
         return out.full().reshape(n, J)
 
@@ -151,7 +164,7 @@ class BeliefModel:
         """Containment margin of the final posterior per target face (scaled length)."""
         D = self.data
         N = D.At.shape[0]
-        out = self.f_target.map(N)(np.tile(z.x[-1][:, None], (1, N)), _hcat(np.repeat(z.Y[-1:], N, axis=0)),
+        out = self._map(self.f_target, N)(np.tile(z.x[-1][:, None], (1, N)), _hcat(np.repeat(z.Y[-1:], N, axis=0)),
                                    D.At.T, D.bt[None, :])
         return out.full().ravel()
 
@@ -160,7 +173,7 @@ class BeliefModel:
         K, d = self.data.K, self.data.d
         if K < 2:
             return np.zeros((0, d, d))
-        g = self.f_kalman.map(K - 1)(_hcat(z.Q[2:]), _hcat(z.Y[1:-1])).full()
+        g = self._map(self.f_kalman, K - 1)(_hcat(z.Q[2:]), _hcat(z.Y[1:-1])).full()
         return sym(np.stack(np.split(g, K - 1, axis=1)))
 
     def kalman_gaps(self, z: Layout) -> np.ndarray:

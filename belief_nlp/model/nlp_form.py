@@ -119,8 +119,13 @@ class NLPProblem:
             raise ValidationError("formulation", "without_sensing() needs the 'cholesky' NLP")
         tri, d, K, off = self.info["tri"], self.info["d"], self.info["K"], self.info["sensing_offset"]
         z0, lbz, ubz = self.pack(lay), self.lbz.copy(), self.ubz.copy()
+        # the factors L_k as pack() put them into z0 (the "cholesky" NLP holds
+        # L's entries): the same matrices as factoring S_k again, at no cost
+        L = np.zeros((K, d, d))
+        L[:, [i for i, _ in tri], [j for _, j in tri]] = z0[off:off + K * len(tri)].reshape(K, len(tri))
+        col_norms = np.linalg.norm(L, axis=1)                    # (K, d): column norms of each L_k
         for k in range(1, K + 1):
-            cols = np.linalg.norm(_psd_factor(lay.S[k]), axis=0)
+            cols = col_norms[k - 1]
             for c in np.flatnonzero(cols <= floor * (1 + slack)):
                 for p, (i, j) in enumerate(tri):
                     if j == c:
@@ -277,12 +282,14 @@ def _sym_inv(M: ca.SX) -> ca.SX:
 
 
 def _psd_factor(S: np.ndarray) -> np.ndarray:
-    """Lower Cholesky factor of the PSD part of S (a tiny jitter for S = 0)."""
-    S = 0.5 * (S + S.T)
+    """Lower Cholesky factor of the PSD part of S (a tiny jitter for S = 0);
+    of each matrix of a stack (n, d, d) too."""
+    S = 0.5 * (S + np.swapaxes(S, -1, -2))
     w, V = np.linalg.eigh(S)
-    Sp = (V * np.maximum(w, 0.0)) @ V.T
-    jitter = 1e-12 * max(1.0, float(np.trace(Sp)))
-    return np.linalg.cholesky(Sp + jitter * np.eye(S.shape[0]))
+    Sp = (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
+    # fmax: a NaN trace gives 1.0, as max(1.0, nan) did one matrix at a time
+    jitter = 1e-12 * np.fmax(1.0, np.trace(Sp, axis1=-2, axis2=-1))
+    return np.linalg.cholesky(Sp + jitter[..., None, None] * np.eye(S.shape[-1]))
 
 
 def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float = 1e-6,
@@ -342,21 +349,26 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
 
     def _packing(formulation: str, floor: float) -> tuple[Callable, Callable]:
         """pack (Layout -> z values) and unpack (z values -> Layout) of ``formulation``."""
+        ti, tj = [i for i, _ in tri], [j for _, j in tri]
+
         def pack(lay: Layout) -> np.ndarray:
             Xv = lay.x[1:].T
             if formulation == "minors":
                 Sp = np.stack([[0.5 * (lay.S[k][i, j] + lay.S[k][j, i]) for i, j in tri]
                                for k in range(1, K + 1)], 1)
             else:
-                Ls = [_psd_factor(lay.S[k]) for k in range(1, K + 1)]
+                # every step's factor in one stacked call: numpy runs the same
+                # LAPACK / BLAS kernel on each matrix, so the same values as one at a time
+                Ls = _psd_factor(np.asarray(lay.S[1:K + 1], float))
                 if formulation == "logchol":
                     for Lk in Ls:   # lifted to the floor (more sensing: the start stays safe)
                         Lk[np.diag_indices(d)] = np.log(np.maximum(np.diag(Lk), floor))
-                Sp = np.stack([[Lk[i, j] for i, j in tri] for Lk in Ls], 1)
+                Sp = Ls[:, ti, tj].T
             parts_ = [Xv.ravel(order="F"), Sp.ravel(order="F")]
             if lift_q:
-                Mp = np.stack([[np.linalg.cholesky(0.5 * (lay.Q[k] + lay.Q[k].T))[i, j] for i, j in tri]
-                               for k in range(2, K + 1)], 1) if K > 1 else np.zeros((t, 0))
+                Q = np.asarray(lay.Q[2:K + 1], float)
+                Mp = np.linalg.cholesky(0.5 * (Q + np.swapaxes(Q, -1, -2)))[:, ti, tj].T if K > 1 \
+                    else np.zeros((t, 0))
                 parts_.append(Mp.ravel(order="F"))
             parts_.append(lam_values(lay))
             if budget:

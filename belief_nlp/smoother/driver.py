@@ -364,24 +364,27 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
         candidates.append((model.cost(z)[0], it, z, f"iterate {it}"))
     candidates.sort(key=lambda c: (c[0], c[1] != -1))
     intended = candidates[0][3] if candidates else "the warm start"
-    answer, origin, report = problem.start, "the warm start", None
+    solver = outcome.solver or problem.solver or ""
+    method_name = outcome.label or m.name
+    meta = {"method": method_name, "solver": solver, "alpha": model.data.alpha}
+    answer, origin, report, path = problem.start, "the warm start", None, None
     for cost, it, z, where in candidates:
         if not np.isfinite(cost):
             continue
         if cost > problem.cost0 * (1 + 1e-12) + 1e-15:
             break
-        rep = verify(sc, model.to_path(z), certificates=z.lam / model.data.sigma, **_risk_args(model, z))
+        # the path verified is the path returned (verify reads no meta): built once
+        cand = model.to_path(z, meta=meta)
+        rep = verify(sc, cand, certificates=z.lam / model.data.sigma, **_risk_args(model, z))
         if rep.safe:
-            answer, origin, report = z, where, rep
+            answer, origin, report, path = z, where, rep, cand
             break
         log.warning("%s failed independent verification; trying the next candidate", where)
     if status == "converged" and origin != intended:
         status = "above_start" if candidates and candidates[0][0] > problem.cost0 else "infeasible_iterate"
         message = f"{message}; {origin} is returned ({STATUSES[status]})"
-    solver = outcome.solver or problem.solver or ""
-    method_name = outcome.label or m.name
-    meta = {"method": method_name, "solver": solver, "alpha": model.data.alpha}
-    path = model.to_path(answer, meta=meta)
+    if path is None:
+        path = model.to_path(answer, meta=meta)
     lam_si = answer.lam / model.data.sigma
     if report is None:                    # the warm start: verified here (the candidates were above)
         report = verify(sc, path, certificates=lam_si, **_risk_args(model, answer))

@@ -59,6 +59,9 @@ __all__ = ["WarmStart", "warm_start", "resample_means", "allocate_steps", "sharp
 # exactly (numerics.md: constraints end active at ~1e-7).
 _START_MARGIN = DEFAULT_POLICY.warm_start
 _MAX_HALVINGS = 60
+# candidates of the halving loop checked in one batch (a batch's rows cost
+# ~2 % of a call each: 1 row 1.05 ms, 8 rows 1.18 ms at K = 20)
+_HALVING_BATCH = 4
 
 
 @dataclass
@@ -298,22 +301,38 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
         if not_clear.size == 0:
             break
         k += int(not_clear[0])
+        # P[k - 1] halved until transition k is clear: the candidates P, P/2,
+        # P/4, ... (each the half of the one before, as one halving at a time
+        # gives them) checked in one batch, taken in order -- the first clear
+        # one, or the first at which a halving is refused, decides (one call
+        # instead of one per halving: most transitions need one to three)
+        rows = _HALVING_BATCH
         while True:
-            tm = transition_minimiser(x[k - 1], P[k - 1], x[k], W, hazards, threshold=thr)
-            bad = np.nonzero(tm.dist2[0] < thr)[0]
-            if bad.size == 0:
+            cand = np.empty((rows, *W.shape))
+            cand[0] = P[k - 1]
+            for i in range(1, rows):
+                cand[i] = 0.5 * cand[i - 1]
+            tm = transition_minimiser(np.repeat(x[k - 1][None], rows, axis=0), cand,
+                                      np.repeat(x[k][None], rows, axis=0), W, hazards, threshold=thr)
+            clear = np.flatnonzero(~np.any(tm.dist2 < thr, axis=1))
+            n = int(clear[0]) if clear.size else rows          # halvings within this batch
+            for i in range(n):                                 # each refused halving raises as before
+                if k == 1 or halvings > _MAX_HALVINGS * K_ \
+                        or np.max(np.linalg.eigvalsh(cand[i])) < 1e-14 * max(1.0, np.trace(W)):
+                    j = int(np.nonzero(tm.dist2[i] < thr)[0][0])
+                    raise InfeasibleStartError(
+                        f"transition {k} (from {x[k - 1].round(6).tolist()} to {x[k].round(6).tolist()}) "
+                        f"cannot be made clear of {scenario.hazards[j].name} under the smoother's per-step noise "
+                        f"W: the means pass too close (no sensing before the step can shrink P + W enough)"
+                        + (". The path was planned with per-metre noise; plan with noise='per_step' to get "
+                           "paths feasible for the smoother's model" if path.noise == "per_metre" else ""),
+                        transition=k, obstacle=scenario.hazards[j].name)
+                halvings += 1
+            if clear.size:
+                P[k - 1] = cand[n]
                 break
-            if k == 1 or halvings > _MAX_HALVINGS * K_ or np.max(np.linalg.eigvalsh(P[k - 1])) < 1e-14 * max(1.0, np.trace(W)):
-                j = int(bad[0])
-                raise InfeasibleStartError(
-                    f"transition {k} (from {x[k - 1].round(6).tolist()} to {x[k].round(6).tolist()}) "
-                    f"cannot be made clear of {scenario.hazards[j].name} under the smoother's per-step noise W: "
-                    f"the means pass too close (no sensing before the step can shrink P + W enough)"
-                    + (". The path was planned with per-metre noise; plan with noise='per_step' to get "
-                       "paths feasible for the smoother's model" if path.noise == "per_metre" else ""),
-                    transition=k, obstacle=scenario.hazards[j].name)
-            P[k - 1] = 0.5 * P[k - 1]
-            halvings += 1
+            P[k - 1] = 0.5 * cand[-1]
+            rows = 2 * _HALVING_BATCH                          # a long run of halvings: larger batches
         step(k)
         k += 1
     # final posterior inside the target

@@ -1,0 +1,90 @@
+"""The cuts of the work around the solver (docs/numerics.md, "Overhead around
+the solver (session 9)") change no number: batched forms give the bits the
+one-at-a-time forms gave."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import belief_nlp as bn
+import belief_nlp.smoother.warmstart as warmstart
+from belief_nlp.methods.nlp_recorder import Recorder
+from belief_nlp.model import BeliefModel
+from belief_nlp.model.evaluate import _hcat
+from belief_nlp.model.nlp_form import _psd_factor, build_nlp
+
+from conftest import paper_multi_path_pair
+
+
+def test_warm_start_halvings_do_not_depend_on_the_batch(monkeypatch):
+    """The halving loop checks P, P/2, P/4, ... in batches; any batch size
+    (1: one candidate at a time, as before) gives the same warm start."""
+    sc, path = paper_multi_path_pair(steps_per_segment=2, sensing=1e-3)
+    results = []
+    for batch in (1, 4, 16):
+        monkeypatch.setattr(warmstart, "_HALVING_BATCH", batch)
+        results.append(bn.warm_start(sc, path, K=30, verify_start=False))
+    assert results[0].added_sensing > 0
+    for ws in results[1:]:
+        assert ws.added_sensing == results[0].added_sensing
+        assert np.array_equal(ws.path.P, results[0].path.P) and np.array_equal(ws.lam, results[0].lam)
+
+
+def test_stacked_psd_factor_is_the_factor_of_each_matrix():
+    rng = np.random.default_rng(3)
+    for d in (2, 3):
+        A = rng.standard_normal((12, d, d)) * 10.0 ** rng.uniform(-6, 2, size=(12, 1, 1))
+        S = A @ np.swapaxes(A, -1, -2)
+        S[::3] = 0.0                              # S = 0: the jitter alone
+        S[1::4] -= 1e-13 * np.eye(d)              # slightly indefinite: the PSD part
+        stacked = _psd_factor(S)
+        assert all(np.array_equal(stacked[k], _psd_factor(S[k])) for k in range(S.shape[0]))
+
+
+def test_hcat_is_the_column_concatenation():
+    M = np.arange(5 * 2 * 3, dtype=float).reshape(5, 2, 3)
+    assert np.array_equal(_hcat(M), np.concatenate(list(M), axis=1))
+    assert _hcat(np.zeros((0, 2, 2))).shape == (2, 0)
+
+
+@pytest.fixture(scope="module")
+def recorder():
+    sc, path = paper_multi_path_pair(steps_per_segment=1)
+    ws = bn.warm_start(sc, path)
+    model = BeliefModel(sc, ws.K, 0.3)
+    nlp = build_nlp(model, "logchol")
+    z = model.tighten(model.from_path(ws.path, ws.lam))
+    zv = nlp.pack(z)
+    pv = nlp.anchor(z, 0.3)
+    gv = np.asarray(ca.Function("g", [nlp.z, nlp.p], [nlp.g])(zv, pv)).ravel()
+    return nlp, zv, pv, gv
+
+
+def test_recorder_buffers_and_dms_record_alike(recorder):
+    """eval_buffer (what CasADi's nlpsol calls: the solver's buffers) and eval
+    (DMs: backends outside CasADi) give the same rows, parts and candidates,
+    the parts those of ``nlp.parts``; NULL inputs read as zeros."""
+    nlp, zv, pv, gv = recorder
+    rows = []
+    for via_buffer in (True, False):
+        rec = Recorder(nlp, keep=3, bar=None)
+        rec.begin(pv, 10, None)
+        for i in range(3):
+            x = zv * (1 + 1e-3 * i)
+            if via_buffer:            # a Function call on the callback goes through eval_buffer
+                stop = rec(x, 1.0 + i, gv, [], [], [])
+                assert float(stop) == 0.0
+            else:
+                assert rec.eval([ca.DM(x), ca.DM(1.0 + i), ca.DM(gv)]) == [0]
+        rows.append(([r[:3] + r[4:] for r in rec.rows], [(c, it) for c, it, _ in rec.best]))
+        ctrl, info, _ = nlp.parts(rec.zs[-1], pv)
+        assert rec.rows[-1][5:] == (float(ctrl), float(info))
+    assert rows[0] == rows[1] and len(rows[0][0]) == 2           # iteration 0 (the start) is not recorded
+    rec = Recorder(nlp, keep=3, bar=None)
+    rec.begin(pv, 10, None)
+    buf = [memoryview(np.ascontiguousarray(zv)), None, None, None, None, None]
+    out = np.zeros(1)
+    assert rec.eval_buffer(buf, [memoryview(out)]) == 0 and rec.eval_buffer(buf, [memoryview(out)]) == 0
+    assert rec.rows[-1][2] == float(max(np.max(nlp.lbg, initial=0.0), np.max(-nlp.ubg, initial=0.0)))
