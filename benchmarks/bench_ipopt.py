@@ -340,7 +340,8 @@ def floor_study(args) -> dict:
                 ws[key] = (plans[key][0], bn.warm_start(plans[key][0], plans[key][1], K=K))
             except bn.InfeasibleStartError as exc:           # recorded, not smoothed
                 out.setdefault("no_warm_start", []).append({"map": key[0], "seed": key[1], "K": K, "error": str(exc)})
-        for vname, kw in FLOOR_VARIANTS.items():
+        variants = {f"floor {f:g}": dict(floor=f) for f in args.floors} if args.floors else FLOOR_VARIANTS
+        for vname, kw in variants.items():
             ipopt.clear_cache()
             rows = []
             for (name, seed), (sc, w) in ws.items():
@@ -425,11 +426,12 @@ def main() -> None:
     ap.add_argument("--study", choices=("ablation", "k", "inertia", "polish", "floor"), default="ablation")
     ap.add_argument("--maps", type=int, default=5, help="inertia study: random-polygons maps 0..n-1")
     ap.add_argument("--seeds", type=int, default=None, help="seeds 0..n-1 (ablation: 5, k: 3)")
-    ap.add_argument("--K", type=int, nargs="+", default=None, help="ablation: 20; k: 20 40")
+    ap.add_argument("--K", type=int, nargs="*", default=None, help="ablation: 20; k: 20 40")
     ap.add_argument("--extra-K", type=int, nargs="*", default=[10, 80],
                     help="k study: further K for the defaults, seed 0 only")
     ap.add_argument("--tail-K", type=int, nargs="*", default=[80], help="floor study: K on paper-multi only, first")
     ap.add_argument("--tail-seeds", type=int, default=3, help="floor study: paper-multi seeds 0..n-1 at --tail-K")
+    ap.add_argument("--floors", type=float, nargs="*", default=None, help="floor study: these floors, not FLOOR_VARIANTS")
     ap.add_argument("--auto", action="store_true", help="floor study: auto's final cost and CPU per case too")
     ap.add_argument("--out", type=Path, default=None, help="the record (default: benchmarks/results/<study>.json)")
     args = ap.parse_args()
@@ -437,7 +439,7 @@ def main() -> None:
         args.seeds, args.K = args.seeds or 5, args.K or [20]
         out, name = ablation(args), "ipopt_ablation.json"
     elif args.study == "floor":
-        args.seeds, args.K = 6 if args.seeds is None else args.seeds, args.K or [20, 40]
+        args.seeds, args.K = 6 if args.seeds is None else args.seeds, [20, 40] if args.K is None else args.K
         out, name = floor_study(args), "ipopt_floor.json"
     elif args.study in ("inertia", "polish"):
         args.seeds, args.K = args.seeds or 10, args.K or [20, 40]
