@@ -431,7 +431,8 @@ def main() -> None:
                     help="k study: further K for the defaults, seed 0 only")
     ap.add_argument("--tail-K", type=int, nargs="*", default=[80], help="floor study: K on paper-multi only, first")
     ap.add_argument("--tail-seeds", type=int, default=3, help="floor study: paper-multi seeds 0..n-1 at --tail-K")
-    ap.add_argument("--floors", type=float, nargs="*", default=None, help="floor study: these floors, not FLOOR_VARIANTS")
+    ap.add_argument("--floors", type=float, nargs="*", default=None,
+                    help="floor study: these floors, not FLOOR_VARIANTS")
     ap.add_argument("--auto", action="store_true", help="floor study: auto's final cost and CPU per case too")
     ap.add_argument("--out", type=Path, default=None, help="the record (default: benchmarks/results/<study>.json)")
     args = ap.parse_args()
