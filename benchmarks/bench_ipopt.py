@@ -32,9 +32,10 @@ Four studies:
 * ``--study floor`` (issue 21, item 3): the log-Cholesky stage's floor
   (FLOOR_VARIANTS) at K = 80 on paper-multi seeds 0..2 first, then the
   polish study's cases at K = 20 and 40; ``--auto`` adds auto's final cost;
-  writes benchmarks/results/ipopt_floor.json.
+  writes benchmarks/results/ipopt_floor.json. ``--study mu``: the same
+  cases for MU_VARIANTS (ipopt_mu.json).
 
-    python benchmarks/bench_ipopt.py [--study ablation|k|inertia|polish|floor] [--seeds 5] [--K 20] [--out FILE]
+    python benchmarks/bench_ipopt.py [--study ablation|k|inertia|polish|floor|mu] [--seeds 5] [--K 20] [--out FILE]
 """
 
 from __future__ import annotations
@@ -102,6 +103,14 @@ FLOOR_VARIANTS = {
     "floor 5e-3": dict(floor=5e-3),
     "floor 3e-3": dict(floor=3e-3),
     "floor 1e-3": dict(floor=1e-3),
+}
+
+#: the barrier's floor of the log-Cholesky stage (1e-7 by default): at
+#: K = 80 half of the steps end at a bound (mu at its floor, fraction to the
+#: boundary 1 - mu); a larger floor keeps the iterates off the bounds. The
+#: defaults' rows are the floor study's (the runs are deterministic)
+MU_VARIANTS = {
+    "mu_min 1e-6": dict(floor=1e-2, solver_options={"mu_min": 1e-6}),
 }
 
 _ROW = re.compile(r"^\s*(\d+)(r?)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+?)([a-zA-Z]?)\s+(\d+)\s*$")
@@ -313,7 +322,7 @@ def _auto(sc, start, alpha: float, floor: float) -> dict:
             "verified": bool(r.path is not None and bn.verify(sc, r.path).safe)}
 
 
-def floor_study(args) -> dict:
+def floor_study(args, variants: dict | None = None) -> dict:
     """FLOOR_VARIANTS: the tail first (``--tail-K`` on paper-multi seeds
     0..``--tail-seeds``-1), then ``--K`` on paper-multi seeds 0..``--seeds``-1
     and random-polygons maps 0..``--maps``-1, both alphas; ``--auto`` adds
@@ -340,7 +349,8 @@ def floor_study(args) -> dict:
                 ws[key] = (plans[key][0], bn.warm_start(plans[key][0], plans[key][1], K=K))
             except bn.InfeasibleStartError as exc:           # recorded, not smoothed
                 out.setdefault("no_warm_start", []).append({"map": key[0], "seed": key[1], "K": K, "error": str(exc)})
-        variants = {f"floor {f:g}": dict(floor=f) for f in args.floors} if args.floors else FLOOR_VARIANTS
+        if variants is None:
+            variants = {f"floor {f:g}": dict(floor=f) for f in args.floors} if args.floors else FLOOR_VARIANTS
         for vname, kw in variants.items():
             ipopt.clear_cache()
             rows = []
@@ -423,7 +433,7 @@ def _json(o):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--study", choices=("ablation", "k", "inertia", "polish", "floor"), default="ablation")
+    ap.add_argument("--study", choices=("ablation", "k", "inertia", "polish", "floor", "mu"), default="ablation")
     ap.add_argument("--maps", type=int, default=5, help="inertia study: random-polygons maps 0..n-1")
     ap.add_argument("--seeds", type=int, default=None, help="seeds 0..n-1 (ablation: 5, k: 3)")
     ap.add_argument("--K", type=int, nargs="*", default=None, help="ablation: 20; k: 20 40")
@@ -439,9 +449,10 @@ def main() -> None:
     if args.study == "ablation":
         args.seeds, args.K = args.seeds or 5, args.K or [20]
         out, name = ablation(args), "ipopt_ablation.json"
-    elif args.study == "floor":
+    elif args.study in ("floor", "mu"):
         args.seeds, args.K = 6 if args.seeds is None else args.seeds, [20, 40] if args.K is None else args.K
-        out, name = floor_study(args), "ipopt_floor.json"
+        out = floor_study(args, MU_VARIANTS if args.study == "mu" else None)
+        name = f"ipopt_{args.study}.json"
     elif args.study in ("inertia", "polish"):
         args.seeds, args.K = args.seeds or 10, args.K or [20, 40]
         out = variant_study(args, INERTIA_VARIANTS if args.study == "inertia" else POLISH_VARIANTS)
