@@ -29,12 +29,19 @@ Four studies:
   stage's multipliers or not (POLISH_VARIANTS), the same cases; writes
   benchmarks/results/ipopt_polish.json.
 
-    python benchmarks/bench_ipopt.py [--study ablation|k|inertia|polish] [--seeds 5] [--K 20] [--out FILE]
+* ``--study floor`` (issue 21, item 3): the log-Cholesky stage's floor
+  (FLOOR_VARIANTS) at K = 80 on paper-multi seeds 0..2 first, then the
+  polish study's cases at K = 20 and 40; ``--auto`` adds auto's final cost;
+  writes benchmarks/results/ipopt_floor.json. ``--study mu``: the same
+  cases for MU_VARIANTS (ipopt_mu.json).
+
+    python benchmarks/bench_ipopt.py [--study ablation|k|inertia|polish|floor|mu] [--seeds 5] [--K 20] [--out FILE]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import glob
 import json
 import os
@@ -86,6 +93,24 @@ INERTIA_VARIANTS = {
 POLISH_VARIANTS = {
     "polish without multipliers (before)": dict(solver_options={"warm_start_init_point": "no"}),
     "polish from stage 1's multipliers (default)": dict(),
+}
+
+#: the floor of the log-Cholesky stage (L_ii >= floor, scaled units): the
+#: default, the candidate of the K study (3e-3), and one on either side of
+#: it (5e-3 between the two; 1e-3 whether the trend goes on)
+FLOOR_VARIANTS = {
+    "floor 1e-2 (default)": dict(floor=1e-2),
+    "floor 5e-3": dict(floor=5e-3),
+    "floor 3e-3": dict(floor=3e-3),
+    "floor 1e-3": dict(floor=1e-3),
+}
+
+#: the barrier's floor of the log-Cholesky stage (1e-7 by default): at
+#: K = 80 half of the steps end at a bound (mu at its floor, fraction to the
+#: boundary 1 - mu); a larger floor keeps the iterates off the bounds. The
+#: defaults' rows are the floor study's (the runs are deterministic)
+MU_VARIANTS = {
+    "mu_min 1e-6": dict(floor=1e-2, solver_options={"mu_min": 1e-6}),
 }
 
 _ROW = re.compile(r"^\s*(\d+)(r?)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+?)([a-zA-Z]?)\s+(\d+)\s*$")
@@ -277,6 +302,118 @@ def variant_study(args, variants: dict) -> dict:
     return out
 
 
+@contextlib.contextmanager
+def _auto_floor(floor: float):
+    """auto's IPOPT stage with ``floor`` (auto has no floor option: it calls
+    ``ipopt.run`` with the engine's defaults)."""
+    saved = ipopt.run
+    ipopt.run = lambda problem, **kw: saved(problem, **{"floor": floor, **kw})
+    try:
+        yield
+    finally:
+        ipopt.run = saved
+
+
+def _auto(sc, start, alpha: float, floor: float) -> dict:
+    with _auto_floor(floor):
+        r = bn.smooth(sc, start, method="auto", alpha=alpha)
+    return {"status": r.status, "cost": r.cost, "method": r.method, "iterations": int(r.stats.get("iter_count", 0)),
+            "cpu_s": float(r.stats.get("cpu_time", 0.0)),
+            "verified": bool(r.path is not None and bn.verify(sc, r.path).safe)}
+
+
+def floor_study(args, variants: dict | None = None) -> dict:
+    """FLOOR_VARIANTS: the tail first (``--tail-K`` on paper-multi seeds
+    0..``--tail-seeds``-1), then ``--K`` on paper-multi seeds 0..``--seeds``-1
+    and random-polygons maps 0..``--maps``-1, both alphas; ``--auto`` adds
+    auto's final cost and CPU per case. The record is rewritten after every
+    (K, variant), so a partial run is kept."""
+    from belief_nlp.families import generate
+
+    path = args.out or HERE / "ipopt_floor.json"
+    maps = [("paper-multi", s, bn.load_scenario("paper-multi")) for s in range(max(args.seeds, args.tail_seeds))]
+    maps += [(f"random-polygons@{m}", m, generate("random-polygons", m)) for m in range(args.maps)]
+    plans = {}
+    for name, seed, sc in maps:
+        plan = bn.plan(sc, n_nodes=500, seed=seed, noise="per_step")
+        if plan.success:
+            plans[name, seed] = (sc, plan.path)
+    out = {"machine": {"cpus": os.cpu_count(), "loadavg_at_start": os.getloadavg()}, "settings": vars(args),
+           "variants": []}
+    runs = [(K, [k for k in plans if k[0] == "paper-multi" and k[1] < args.tail_seeds]) for K in args.tail_K]
+    runs += [(K, [k for k in plans if k[0] != "paper-multi" or k[1] < args.seeds]) for K in args.K]
+    for K, keys in runs:
+        ws = {}
+        for key in keys:
+            try:
+                ws[key] = (plans[key][0], bn.warm_start(plans[key][0], plans[key][1], K=K))
+            except bn.InfeasibleStartError as exc:           # recorded, not smoothed
+                out.setdefault("no_warm_start", []).append({"map": key[0], "seed": key[1], "K": K, "error": str(exc)})
+        if variants is None:
+            variants = {f"floor {f:g}": dict(floor=f) for f in args.floors} if args.floors else FLOOR_VARIANTS
+        for vname, kw in variants.items():
+            ipopt.clear_cache()
+            rows = []
+            for (name, seed), (sc, w) in ws.items():
+                for alpha in (1.0, 0.1):
+                    rec = _smooth(sc, w, alpha, **kw)
+                    rec.pop("path")
+                    row = {"map": name, "seed": seed, "alpha": alpha, "K": K,
+                           "start_information": float(w.path.information), **rec}
+                    if args.auto:
+                        row["auto"] = _auto(sc, w, alpha, kw["floor"])
+                    rows.append(row)
+                    print(f"  {vname}, K = {K}, {name} {seed}, alpha {alpha}: {rec['stages']}, restoration "
+                          f"{rec['restoration']}, {rec['cpu_s']:.2f} s CPU, cost {rec['cost']:.5f}"
+                          + (f", auto {row['auto']['cost']:.5f}" if args.auto else "")
+                          + f", load {rec['loadavg']:.1f}", flush=True)
+            v = {"name": vname, "K": K, "options": kw, **_summarise(rows),
+                 "total_iterations": int(sum(x["iterations"] for x in rows)),
+                 "total_restoration": int(sum(x["restoration"] for x in rows)),
+                 "total_cpu_s": float(sum(x["cpu_s"] for x in rows)),
+                 "polish_converged": sum(x["polish"] == "Solve_Succeeded" for x in rows), "rows": rows}
+            if args.auto:
+                v["auto_total_cpu_s"] = float(sum(x["auto"]["cpu_s"] for x in rows))
+            out["variants"].append(v)
+            print(f"{vname}, K = {K}: median {v['median_iterations']} (max {v['max_iterations']}), total "
+                  f"{v['total_iterations']} iterations ({v['total_restoration']} restoration), "
+                  f"{v['total_cpu_s']:.1f} s CPU, {v['converged']}/{v['cases']} converged, "
+                  f"{v['verified']}/{v['cases']} verified, polish converged {v['polish_converged']}, "
+                  f"load {v['median_loadavg']:.1f}", flush=True)
+            _floor_ratios([x for x in out["variants"] if x["K"] == K], args.auto)
+            path.write_text(json.dumps(out, indent=1, default=_json))
+        for v in out["variants"]:
+            if v["K"] == K:
+                print(f"  {v['name']}: cost / best median {v['median_cost_ratio_to_best']:.6f}, max "
+                      f"{v['max_cost_ratio_to_best']:.6f}" + (f"; auto median {v['auto_median_cost_ratio_to_best']:.6f}"
+                                                              f", max {v['auto_max_cost_ratio_to_best']:.6f}"
+                                                              if args.auto else ""), flush=True)
+    return out
+
+
+def _floor_ratios(variants: list[dict], auto: bool) -> None:
+    """Per row and variant: cost / the best verified cost of all variants of
+    the case (IPOPT's; auto's against the best of IPOPT's and auto's)."""
+    _cost_ratios(variants, ("map", "seed", "alpha"))
+    best: dict = {}
+    for v in variants:
+        for x in v["rows"]:
+            for r in ([x, x["auto"]] if auto else [x]):
+                if r["verified"]:
+                    k = (x["map"], x["seed"], x["alpha"])
+                    best[k] = min(best.get(k, np.inf), r["cost"])
+    for v in variants:
+        for x in v["rows"]:
+            k = (x["map"], x["seed"], x["alpha"])
+            x["cost_ratio_to_best"] = x["cost"] / best[k] if x["verified"] else float("inf")
+            if auto:
+                x["auto"]["cost_ratio_to_best"] = x["auto"]["cost"] / best[k] if x["auto"]["verified"] \
+                    else float("inf")
+        if auto:
+            r = [x["auto"]["cost_ratio_to_best"] for x in v["rows"]]
+            v["auto_median_cost_ratio_to_best"], v["auto_max_cost_ratio_to_best"] = float(np.median(r)), float(max(r))
+
+
 def _restarts(sc, answer, K: int, seed: int, first: dict) -> dict:
     """IPOPT from its own answer (means and sensing: ``sensing="path"``) and
     from the answer's means with minimal sensing."""
@@ -290,19 +427,32 @@ def _restarts(sc, answer, K: int, seed: int, first: dict) -> dict:
     return rec
 
 
+def _json(o):
+    return str(o) if isinstance(o, Path) else float(o)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--study", choices=("ablation", "k", "inertia", "polish"), default="ablation")
+    ap.add_argument("--study", choices=("ablation", "k", "inertia", "polish", "floor", "mu"), default="ablation")
     ap.add_argument("--maps", type=int, default=5, help="inertia study: random-polygons maps 0..n-1")
     ap.add_argument("--seeds", type=int, default=None, help="seeds 0..n-1 (ablation: 5, k: 3)")
-    ap.add_argument("--K", type=int, nargs="+", default=None, help="ablation: 20; k: 20 40")
+    ap.add_argument("--K", type=int, nargs="*", default=None, help="ablation: 20; k: 20 40")
     ap.add_argument("--extra-K", type=int, nargs="*", default=[10, 80],
                     help="k study: further K for the defaults, seed 0 only")
+    ap.add_argument("--tail-K", type=int, nargs="*", default=[80], help="floor study: K on paper-multi only, first")
+    ap.add_argument("--tail-seeds", type=int, default=3, help="floor study: paper-multi seeds 0..n-1 at --tail-K")
+    ap.add_argument("--floors", type=float, nargs="*", default=None,
+                    help="floor study: these floors, not FLOOR_VARIANTS")
+    ap.add_argument("--auto", action="store_true", help="floor study: auto's final cost and CPU per case too")
     ap.add_argument("--out", type=Path, default=None, help="the record (default: benchmarks/results/<study>.json)")
     args = ap.parse_args()
     if args.study == "ablation":
         args.seeds, args.K = args.seeds or 5, args.K or [20]
         out, name = ablation(args), "ipopt_ablation.json"
+    elif args.study in ("floor", "mu"):
+        args.seeds, args.K = 6 if args.seeds is None else args.seeds, [20, 40] if args.K is None else args.K
+        out = floor_study(args, MU_VARIANTS if args.study == "mu" else None)
+        name = f"ipopt_{args.study}.json"
     elif args.study in ("inertia", "polish"):
         args.seeds, args.K = args.seeds or 10, args.K or [20, 40]
         out = variant_study(args, INERTIA_VARIANTS if args.study == "inertia" else POLISH_VARIANTS)
@@ -314,7 +464,7 @@ def main() -> None:
     out["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
     path = args.out or HERE / name
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(out, indent=1, default=lambda o: str(o) if isinstance(o, Path) else float(o)))
+    path.write_text(json.dumps(out, indent=1, default=_json))
 
 
 if __name__ == "__main__":
