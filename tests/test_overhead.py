@@ -65,7 +65,8 @@ def recorder():
 def test_recorder_buffers_and_dms_record_alike(recorder):
     """eval_buffer (what CasADi's nlpsol calls: the solver's buffers) and eval
     (DMs: backends outside CasADi) give the same rows, parts and candidates,
-    the parts those of ``nlp.parts``; NULL inputs read as zeros."""
+    the parts those of ``nlp.parts``; f and g passed as NULL (CasADi's Uno
+    plug-in) are the NLP's own values at x."""
     nlp, zv, pv, gv = recorder
     rows = []
     for via_buffer in (True, False):
@@ -87,4 +88,7 @@ def test_recorder_buffers_and_dms_record_alike(recorder):
     buf = [memoryview(np.ascontiguousarray(zv)), None, None, None, None, None]
     out = np.zeros(1)
     assert rec.eval_buffer(buf, [memoryview(out)]) == 0 and rec.eval_buffer(buf, [memoryview(out)]) == 0
-    assert rec.rows[-1][2] == float(max(np.max(nlp.lbg, initial=0.0), np.max(-nlp.ubg, initial=0.0)))
+    g_x = np.asarray(ca.Function("g", [nlp.z, nlp.p], [nlp.g])(zv, pv), float).ravel()
+    assert rec.rows[-1][2] == float(max(np.max(nlp.lbg - g_x, initial=0.0), np.max(g_x - nlp.ubg, initial=0.0)))
+    assert rec.rows[-1][1] == float(min(np.min(g_x[:nlp.n_collision]),
+                                        np.min(g_x[nlp.n_collision:nlp.n_collision + nlp.info["n_target"]])))

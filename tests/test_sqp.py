@@ -142,3 +142,18 @@ def test_without_unopy_auto_falls_back_to_casadis_plugin(tiny_start, monkeypatch
     r = bn.smooth(sc, ws, method="sqp", alpha=1.0, max_iter=4)
     assert "CasADi" in r.stats["interface"] and r.solver == "Uno"
     assert r.status == "max_iter" and r.safe and "optimization_status" not in r.stats["attempts"][0]
+
+
+def test_casadis_plugin_history_reads_the_iterates_own_rows(tiny_start):
+    """CasADi's Uno plug-in hands the iteration callback no f and g (NULL):
+    the recorder evaluates them at the iterate instead of reading zeros, so
+    the history's margins and Kalman gaps are the iterates' own (before: 0.0
+    in every record, and no iterate counted as a feasible candidate)."""
+    sc, ws = tiny_start
+    r = bn.smooth(sc, ws, method="sqp", alpha=1.0, interface="casadi")
+    assert r.status == "converged" and bn.verify(sc, r.path).safe
+    rows = r.history[1:]
+    assert rows and all(h.min_margin != 0.0 for h in rows)
+    assert 0.0 < rows[-1].min_margin < 1e-2 and rows[-1].kalman_gap < 1e-8      # an active row at the optimum
+    assert sum(h.accepted for h in rows) > 1
+    assert rows[-1].cost == pytest.approx(r.cost, rel=1e-6)

@@ -31,6 +31,7 @@ class Recorder(ca.Callback):
         self.calls = 0
         self.offset = 0
         self.pv = None
+        self._fg_fn = None                      # (z, p) -> (f, g), for solvers that pass them as NULL
         self.budget = None
         self.deadline = None
         self.stop_reason = ""
@@ -108,14 +109,25 @@ class Recorder(ca.Callback):
         solver's buffers (no DM per input and iteration: the DM route cost
         ~0.25-0.45 ms an iteration, a fifth of IPOPT's own time per iteration
         at K = 20); x is copied (candidates keep it), g only read here."""
-        # an input the solver passes as NULL (CasADi's Uno interface: f and g)
-        # is None here and zeros in CasADi's convention (and in eval's DMs)
-        x, f, g = (np.frombuffer(a, dtype=np.float64) if a is not None else np.zeros(n)
-                   for a, n in zip(arg[:3], (self.nx, 1, self.ng)))
-        stop = self._take(np.array(x), float(f[0]), g)
+        x = np.array(np.frombuffer(arg[0], dtype=np.float64))
+        if arg[1] is None or arg[2] is None:
+            # a solver that passes f and g as NULL (CasADi's Uno plug-in): the
+            # NLP's own values at x, or the history and the candidates would
+            # read zeros (every collision row short of its margin)
+            f, g = self._fg(x)
+        else:
+            f, g = float(np.frombuffer(arg[1], dtype=np.float64)[0]), np.frombuffer(arg[2], dtype=np.float64)
+        stop = self._take(x, f, g)
         if res[0] is not None:
             np.frombuffer(res[0], dtype=np.float64)[0] = float(stop)
         return 0
+
+    def _fg(self, x: np.ndarray) -> tuple[float, np.ndarray]:
+        """Objective and rows at x with the attempt's parameter (built on first use)."""
+        if self._fg_fn is None:
+            self._fg_fn = ca.Function("belief_nlp_recorder_fg", [self.nlp.z, self.nlp.p], [self.nlp.f, self.nlp.g])
+        f, g = self._fg_fn(x, self.pv)
+        return float(f), np.asarray(g, float).ravel()
 
     def eval(self, arg):
         """One iteration given as DMs (x, f, g): backends outside CasADi call this."""
