@@ -1,9 +1,10 @@
 """The shared engine of the NLP methods (CasADi ``nlpsol`` plug-ins): one
-:class:`NLPBackend` per solver file (``ipopt.py``, ``sqp.py``) says how to
-build the solver's options and read its statuses; everything else -- the
-NLP from the model (:mod:`belief_nlp.model.nlp_form`), the two stages, the
-restarts, the exact safety check of every candidate, the history and the
-raw stats -- is here, the same for every solver.
+:class:`~.nlp_backend.NLPBackend` per solver file (``ipopt.py``, ``sqp.py``,
+``fatrop.py``) says how to build the solver's options and read its statuses;
+the NLP and solver instances come from :mod:`.nlp_build` (memory and disk
+caches), the iteration callback is :mod:`.nlp_recorder`; everything else --
+the two stages, the restarts, the exact safety check of every candidate,
+the history and the raw stats -- is here, the same for every solver.
 
 Stages (docs/numerics.md, "IPOPT iterations"):
 
@@ -33,240 +34,34 @@ iterations, restoration iterations, CPU and wall seconds), ``iter_count``,
 
 from __future__ import annotations
 
-import contextlib
-import hashlib
 import logging
 import os
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-import casadi as ca
 import numpy as np
 
 from ..errors import ValidationError
 from ..model import Layout
-from ..model.cache import MODEL_REVISION, MemoryCache, disk_cache, problem_key
-from ..model.nlp_form import FORMULATIONS, NLPProblem, build_nlp
+from ..model.nlp_form import FORMULATIONS, NLPProblem
 from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Option
 from ..smoother.result import STATUSES, IterationRecord
+from .nlp_backend import NLPBackend
+from .nlp_build import _CACHE, _GRAPHS, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
 from .nlp_recorder import Recorder
 
 __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
 
 log = logging.getLogger("belief_nlp.smoother")
 
-# solvers: 16, every NLP method's two stages (alpha is a parameter) at a few K
-# (IPOPT, fatrop, Uno); NLP graphs with the derivatives built on them: 8
-_CACHE = MemoryCache(16)
-_GRAPHS = MemoryCache(8)
-
-
-class NLPBackend:
-    """How one CasADi ``nlpsol`` plug-in is driven. A solver file subclasses
-    it and sets ``name`` (for results and messages) and ``plugin``."""
-
-    name = "NLP"
-    plugin = ""
-
-    #: the plug-in's options unless the user's override them; per stage
-    #: ("logchol", "cholesky", "polish") changes on top of them
-    defaults: dict = {}
-    stage_options: dict = {}
-    #: names of the plug-in's own iteration limit and tolerance options
-    limit_key = "max_iter"
-    tol_key = "tol"
-    #: ``ca.nlpsol`` options that take derivative functions, and the names of
-    #: the solver's own functions for them: a second solver on the same NLP
-    #: graph (the polish stage) is given the first one's instead of deriving
-    #: them again (empty: the plug-in derives its own every time)
-    shared_functions: dict = {}
-    #: whether the polish starts from the first stage's multipliers (lam_x0,
-    #: lam_g0 of the same NLP graph); the plug-in's "polish" stage options
-    #: then say how it uses them (IPOPT: warm_start_init_point)
-    warm_duals = False
-    #: whether the plug-in calls CasADi's ``iteration_callback`` every
-    #: iteration. One that does not (fatrop) gets its stage budget as its own
-    #: limit, no restarts, one history record per solve, and the time limit
-    #: is checked between solves only
-    calls_back = True
-
-    def options(self, solver_options: dict, tol: float, stage: str) -> dict:
-        """The plug-in's options for ``stage``, the user's ``solver_options``
-        (with or without the "<plugin>." prefix) applied last. The plug-in's
-        own limit is set out of reach: the recorder enforces the run's budget."""
-        opts = {**self.defaults, **self.stage_options.get(stage, {}), self.limit_key: 10**7, self.tol_key: float(tol)}
-        prefix = self.plugin + "."
-        for key, value in solver_options.items():
-            opts[key[len(prefix):] if key.startswith(prefix) else key] = value
-        return opts
-
-    def check_options(self, opts: dict) -> str | None:
-        """What is wrong with the plug-in's options (None: fine). Plug-ins that
-        validate their options when built (IPOPT) need nothing here."""
-        return None
-
-    def nlpsol_options(self, opts: dict, log_path: str | None) -> dict:
-        """The ``ca.nlpsol`` options dict around the plug-in's options."""
-        return {self.plugin: opts}
-
-    def nlpsol(self, name: str, nlp: dict, options: dict) -> Any:
-        """The solver instance: CasADi's ``nlpsol`` plug-in by default; a
-        backend outside CasADi returns an object called the same way (keyword
-        arguments x0, p, lbx, ubx, lbg, ubg -> dict with "x", "f", "g"; a
-        ``stats()`` method) that drives ``options["iteration_callback"]``."""
-        return ca.nlpsol(name, self.plugin, nlp, options)
-
-    def attempt_stats(self, stats: dict) -> dict:
-        """Raw solver statistics kept in each attempt's record (none by default)."""
-        return {}
-
-    def form(self, nlp: NLPProblem) -> Any:
-        """The NLP form this solver is given (default: ``nlp`` itself; a
-        structure-exploiting solver returns its stage-ordered form, which has
-        the same attributes)."""
-        return nlp
-
-    def structure_options(self, nlp: Any) -> dict:
-        """``ca.nlpsol`` options that describe ``nlp``'s structure (none by default)."""
-        return {}
-
-    def solving(self) -> contextlib.AbstractContextManager:
-        """Context of every solve (fatrop: its unconditional stdout line silenced)."""
-        return contextlib.nullcontext()
-
-    def return_status(self, stats: dict) -> str:
-        """The solver's own return status from ``solver.stats()``."""
-        return str(stats.get("return_status", "unknown"))
-
-    def map_status(self, raw: str) -> str:
-        """The solver's return status -> one of :data:`STATUSES`."""
-        raise NotImplementedError
-
-    def restoration(self, stats: dict, log_path: str | None, offset: int) -> int | None:
-        """Restoration (or feasibility-phase) iterations of the last solve;
-        None when the solver does not report them."""
-        return None
-
-    def log_file(self) -> str | None:
-        """A log file the solver writes (None: no log)."""
-        return None
-
-
-def clear_cache() -> None:
-    """Drop every cached NLP / solver instance."""
-    _CACHE.clear()
-    _GRAPHS.clear()
-
-
 def _log_size(log_path: str | None) -> int:
     try:
         return os.path.getsize(log_path) if log_path else 0
     except OSError:
         return 0
-
-
-def _base_key(problem: SmoothingProblem, formulation: str, margin: float, regularisation: float) -> str:
-    """Key of an NLP graph: the model's data without alpha (the NLP's
-    parameter), the margin, the regularisation and the formulation ("cholesky"
-    and "logchol" are one graph, :meth:`NLPProblem.variant`)."""
-    family = "cholesky|logchol" if formulation in ("cholesky", "logchol") else formulation
-    return problem_key(problem.model.data, margin, f"nlp:{family}:{regularisation}")
-
-
-def _nlp(problem: SmoothingProblem, formulation: str, margin: float, regularisation: float, floor: float,
-         cache: bool) -> tuple[NLPProblem, dict]:
-    """The NLP of ``formulation`` and the derivative functions solvers built
-    on its graph so far (by plug-in), from the cache when the graph is there."""
-    key = _base_key(problem, formulation, margin, regularisation)
-    entry = _GRAPHS.get(key) if cache else None
-    if entry is None:
-        # the graph's symbolic part from another process (disk cache), else built and kept there
-        disk = disk_cache() if cache else None
-        graph = disk.load(key, kind="graph") if disk is not None else None
-        valid = isinstance(graph, dict) and isinstance(graph.get("function"), ca.Function)
-        entry = (build_nlp(problem.model, formulation, margin=margin, regularisation=regularisation, floor=floor,
-                           graph=graph if valid else None), {})
-        if disk is not None and not valid:
-            disk.save(key, entry[0].graph, kind="graph")
-        if cache:
-            _GRAPHS.put(key, entry)
-    base, shared = entry
-    nlp = base if base.formulation == formulation and base.info.get("floor") == floor \
-        else base.variant(formulation, floor)
-    return nlp, shared
-
-
-def _solver(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulation: str, margin: float,
-            regularisation: float, floor: float, candidates: int, cache: bool) -> tuple[NLPProblem, Any, Recorder, str]:
-    """NLP, nlpsol instance and recorder, from the cache when the model and options match."""
-    # the floor shapes only the "logchol" NLP: it stays out of the other
-    # formulations' keys (no second build of an identical NLP); alpha is the
-    # NLP's parameter, not part of it: one solver serves every alpha
-    floor_key = floor if formulation == "logchol" else None
-    key = problem_key(problem.model.data, margin,
-                      f"{backend.plugin}:{formulation}:{regularisation}:{floor_key}:{sorted(opts.items())!r}")
-    entry = _CACHE.get(key) if cache else None
-    if entry is not None:
-        return (*entry, "memory")
-    view, shared = _nlp(problem, formulation, margin, regularisation, floor, cache)
-    nlp = backend.form(view)
-    # derivatives built for the graph by an earlier solver of this plug-in
-    # (the other stage's, or another process's through the disk cache) are
-    # handed over instead of derived again
-    given = shared.get(backend.plugin, {}) if nlp is view else {}
-    source = "built (derivatives shared)"
-    disk = disk_cache() if cache and nlp is view and backend.shared_functions and not given else None
-    if disk is not None:
-        disk_name = _derivatives_key(nlp, backend)
-        loaded = disk.load(disk_name, kind="nlp")
-        if isinstance(loaded, dict) and set(loaded) == set(backend.shared_functions) \
-                and all(isinstance(f, ca.Function) for f in loaded.values()):
-            given, source, disk = loaded, "built (derivatives from disk)", None
-            shared[backend.plugin] = loaded
-    recorder = Recorder(nlp, keep=candidates, bar=None, stall=0)
-    recorder.log_path = backend.log_file()
-    try:
-        solver = backend.nlpsol(f"belief_nlp_{backend.plugin}", {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
-                                {**backend.nlpsol_options(opts, recorder.log_path), **backend.structure_options(nlp),
-                                 **given, "print_time": False, "iteration_callback": recorder,
-                                 "error_on_fail": False, "show_eval_warnings": False})
-    except RuntimeError as exc:  # bad option names or values
-        raise ValidationError("solver_options",
-                              f"{backend.name} refused them: {str(exc).splitlines()[-1][:200]}") from None
-    if nlp is view and backend.shared_functions and not given:
-        shared[backend.plugin] = _derivatives(solver, backend.shared_functions)
-        if disk is not None and set(shared[backend.plugin]) == set(backend.shared_functions):
-            disk.save(disk_name, shared[backend.plugin], kind="nlp")
-    if cache:
-        _CACHE.put(key, (nlp, solver, recorder))
-    return nlp, solver, recorder, "built" if not given else source
-
-
-def _derivatives_key(nlp: NLPProblem, backend: NLPBackend) -> str:
-    """Disk-cache name of a graph's derivative functions: a hash of the graph
-    itself (its CasADi serialisation, ~30 ms at K = 20), CasADi's version and
-    the plug-in. The functions are derived from nothing else, so an entry
-    can only be found by the graph it was derived from."""
-    h = hashlib.sha256()
-    for part in (MODEL_REVISION, ca.__version__, backend.plugin, sorted(backend.shared_functions.items())):
-        h.update(repr(part).encode())
-    h.update(ca.Function("nlp", [nlp.z, nlp.p], [nlp.f, nlp.g]).serialize().encode())
-    return h.hexdigest()[:40]
-
-
-def _derivatives(solver: Any, names: dict) -> dict:
-    """``{option: function}`` of the derivative functions ``solver`` has (an
-    option such as a quasi-Newton Hessian leaves some out)."""
-    out = {}
-    for option, name in names.items():
-        try:
-            out[option] = solver.get_function(name)
-        except RuntimeError:
-            pass
-    return out
 
 
 def _safe_points(problem: SmoothingProblem, nlp: NLPProblem, recorder: Recorder, z_end: np.ndarray | None,
@@ -345,7 +140,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         # fatrop's limit m allows m + 1 iterations by its own count (measured)
         opts, restarts = {**opts, backend.limit_key: max(int(max_iter) - 1, 0)}, 0
     t_build = time.perf_counter()
-    nlp, solver, recorder, stage.build = _solver(problem, backend, opts, formulation, margin, regularisation, floor,
+    nlp, solver, recorder, stage.build = solver_of(problem, backend, opts, formulation, margin, regularisation, floor,
                                                  max(int(candidates), 0), cache)
     stage.build_time = time.perf_counter() - t_build
     stage.limit = int(max_iter)

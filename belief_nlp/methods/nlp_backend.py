@@ -1,0 +1,106 @@
+"""What one CasADi ``nlpsol`` plug-in needs from the NLP engine
+(:mod:`belief_nlp.methods.nlp_engine`): its options per stage, its statuses,
+its log. A solver file (``ipopt.py``, ``sqp.py``, ``fatrop.py``) subclasses
+:class:`NLPBackend` and registers a method around it."""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Any
+
+import casadi as ca
+
+from ..model.nlp_form import NLPProblem
+
+__all__ = ["NLPBackend"]
+
+
+class NLPBackend:
+    """How one CasADi ``nlpsol`` plug-in is driven. A solver file subclasses
+    it and sets ``name`` (for results and messages) and ``plugin``."""
+
+    name = "NLP"
+    plugin = ""
+
+    #: the plug-in's options unless the user's override them; per stage
+    #: ("logchol", "cholesky", "polish") changes on top of them
+    defaults: dict = {}
+    stage_options: dict = {}
+    #: names of the plug-in's own iteration limit and tolerance options
+    limit_key = "max_iter"
+    tol_key = "tol"
+    #: ``ca.nlpsol`` options that take derivative functions, and the names of
+    #: the solver's own functions for them: a second solver on the same NLP
+    #: graph (the polish stage) is given the first one's instead of deriving
+    #: them again (empty: the plug-in derives its own every time)
+    shared_functions: dict = {}
+    #: whether the polish starts from the first stage's multipliers (lam_x0,
+    #: lam_g0 of the same NLP graph); the plug-in's "polish" stage options
+    #: then say how it uses them (IPOPT: warm_start_init_point)
+    warm_duals = False
+    #: whether the plug-in calls CasADi's ``iteration_callback`` every
+    #: iteration. One that does not (fatrop) gets its stage budget as its own
+    #: limit, no restarts, one history record per solve, and the time limit
+    #: is checked between solves only
+    calls_back = True
+
+    def options(self, solver_options: dict, tol: float, stage: str) -> dict:
+        """The plug-in's options for ``stage``, the user's ``solver_options``
+        (with or without the "<plugin>." prefix) applied last. The plug-in's
+        own limit is set out of reach: the recorder enforces the run's budget."""
+        opts = {**self.defaults, **self.stage_options.get(stage, {}), self.limit_key: 10**7, self.tol_key: float(tol)}
+        prefix = self.plugin + "."
+        for key, value in solver_options.items():
+            opts[key[len(prefix):] if key.startswith(prefix) else key] = value
+        return opts
+
+    def check_options(self, opts: dict) -> str | None:
+        """What is wrong with the plug-in's options (None: fine). Plug-ins that
+        validate their options when built (IPOPT) need nothing here."""
+        return None
+
+    def nlpsol_options(self, opts: dict, log_path: str | None) -> dict:
+        """The ``ca.nlpsol`` options dict around the plug-in's options."""
+        return {self.plugin: opts}
+
+    def nlpsol(self, name: str, nlp: dict, options: dict) -> Any:
+        """The solver instance: CasADi's ``nlpsol`` plug-in by default; a
+        backend outside CasADi returns an object called the same way (keyword
+        arguments x0, p, lbx, ubx, lbg, ubg -> dict with "x", "f", "g"; a
+        ``stats()`` method) that drives ``options["iteration_callback"]``."""
+        return ca.nlpsol(name, self.plugin, nlp, options)
+
+    def attempt_stats(self, stats: dict) -> dict:
+        """Raw solver statistics kept in each attempt's record (none by default)."""
+        return {}
+
+    def form(self, nlp: NLPProblem) -> Any:
+        """The NLP form this solver is given (default: ``nlp`` itself; a
+        structure-exploiting solver returns its stage-ordered form, which has
+        the same attributes)."""
+        return nlp
+
+    def structure_options(self, nlp: Any) -> dict:
+        """``ca.nlpsol`` options that describe ``nlp``'s structure (none by default)."""
+        return {}
+
+    def solving(self) -> contextlib.AbstractContextManager:
+        """Context of every solve (fatrop: its unconditional stdout line silenced)."""
+        return contextlib.nullcontext()
+
+    def return_status(self, stats: dict) -> str:
+        """The solver's own return status from ``solver.stats()``."""
+        return str(stats.get("return_status", "unknown"))
+
+    def map_status(self, raw: str) -> str:
+        """The solver's return status -> one of :data:`STATUSES`."""
+        raise NotImplementedError
+
+    def restoration(self, stats: dict, log_path: str | None, offset: int) -> int | None:
+        """Restoration (or feasibility-phase) iterations of the last solve;
+        None when the solver does not report them."""
+        return None
+
+    def log_file(self) -> str | None:
+        """A log file the solver writes (None: no log)."""
+        return None

@@ -1,0 +1,134 @@
+"""The NLP methods' graphs and solver instances: built once per (scenario, K,
+options) and kept in memory; with the disk cache on
+(:func:`belief_nlp.set_disk_cache`), the graph's symbolic part and IPOPT's
+derivative functions are loaded from an earlier process instead of built
+(docs/numerics.md, "The disk cache"). Used by :mod:`.nlp_engine`."""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Any
+
+import casadi as ca
+
+from ..errors import ValidationError
+from ..model.cache import MODEL_REVISION, MemoryCache, disk_cache, problem_key
+from ..model.nlp_form import NLPProblem, build_nlp
+from ..smoother.context import SmoothingProblem
+from .nlp_backend import NLPBackend
+from .nlp_recorder import Recorder
+
+__all__ = ["clear_cache", "solver_of"]
+
+# solvers: 16, every NLP method's two stages (alpha is a parameter) at a few K
+# (IPOPT, fatrop, Uno); NLP graphs with the derivatives built on them: 8
+_CACHE = MemoryCache(16)
+_GRAPHS = MemoryCache(8)
+
+
+
+def clear_cache() -> None:
+    """Drop every cached NLP / solver instance."""
+    _CACHE.clear()
+    _GRAPHS.clear()
+
+
+def _base_key(problem: SmoothingProblem, formulation: str, margin: float, regularisation: float) -> str:
+    """Key of an NLP graph: the model's data without alpha (the NLP's
+    parameter), the margin, the regularisation and the formulation ("cholesky"
+    and "logchol" are one graph, :meth:`NLPProblem.variant`)."""
+    family = "cholesky|logchol" if formulation in ("cholesky", "logchol") else formulation
+    return problem_key(problem.model.data, margin, f"nlp:{family}:{regularisation}")
+
+
+def _nlp(problem: SmoothingProblem, formulation: str, margin: float, regularisation: float, floor: float,
+         cache: bool) -> tuple[NLPProblem, dict]:
+    """The NLP of ``formulation`` and the derivative functions solvers built
+    on its graph so far (by plug-in), from the cache when the graph is there."""
+    key = _base_key(problem, formulation, margin, regularisation)
+    entry = _GRAPHS.get(key) if cache else None
+    if entry is None:
+        # the graph's symbolic part from another process (disk cache), else built and kept there
+        disk = disk_cache() if cache else None
+        graph = disk.load(key, kind="graph") if disk is not None else None
+        valid = isinstance(graph, dict) and isinstance(graph.get("function"), ca.Function)
+        entry = (build_nlp(problem.model, formulation, margin=margin, regularisation=regularisation, floor=floor,
+                           graph=graph if valid else None), {})
+        if disk is not None and not valid:
+            disk.save(key, entry[0].graph, kind="graph")
+        if cache:
+            _GRAPHS.put(key, entry)
+    base, shared = entry
+    nlp = base if base.formulation == formulation and base.info.get("floor") == floor \
+        else base.variant(formulation, floor)
+    return nlp, shared
+
+
+def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulation: str, margin: float,
+            regularisation: float, floor: float, candidates: int, cache: bool) -> tuple[NLPProblem, Any, Recorder, str]:
+    """NLP, nlpsol instance and recorder, from the cache when the model and options match."""
+    # the floor shapes only the "logchol" NLP: it stays out of the other
+    # formulations' keys (no second build of an identical NLP); alpha is the
+    # NLP's parameter, not part of it: one solver serves every alpha
+    floor_key = floor if formulation == "logchol" else None
+    key = problem_key(problem.model.data, margin,
+                      f"{backend.plugin}:{formulation}:{regularisation}:{floor_key}:{sorted(opts.items())!r}")
+    entry = _CACHE.get(key) if cache else None
+    if entry is not None:
+        return (*entry, "memory")
+    view, shared = _nlp(problem, formulation, margin, regularisation, floor, cache)
+    nlp = backend.form(view)
+    # derivatives built for the graph by an earlier solver of this plug-in
+    # (the other stage's, or another process's through the disk cache) are
+    # handed over instead of derived again
+    given = shared.get(backend.plugin, {}) if nlp is view else {}
+    source = "built (derivatives shared)"
+    disk = disk_cache() if cache and nlp is view and backend.shared_functions and not given else None
+    if disk is not None:
+        disk_name = _derivatives_key(nlp, backend)
+        loaded = disk.load(disk_name, kind="nlp")
+        if isinstance(loaded, dict) and set(loaded) == set(backend.shared_functions) \
+                and all(isinstance(f, ca.Function) for f in loaded.values()):
+            given, source, disk = loaded, "built (derivatives from disk)", None
+            shared[backend.plugin] = loaded
+    recorder = Recorder(nlp, keep=candidates, bar=None, stall=0)
+    recorder.log_path = backend.log_file()
+    try:
+        solver = backend.nlpsol(f"belief_nlp_{backend.plugin}", {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
+                                {**backend.nlpsol_options(opts, recorder.log_path), **backend.structure_options(nlp),
+                                 **given, "print_time": False, "iteration_callback": recorder,
+                                 "error_on_fail": False, "show_eval_warnings": False})
+    except RuntimeError as exc:  # bad option names or values
+        raise ValidationError("solver_options",
+                              f"{backend.name} refused them: {str(exc).splitlines()[-1][:200]}") from None
+    if nlp is view and backend.shared_functions and not given:
+        shared[backend.plugin] = _derivatives(solver, backend.shared_functions)
+        if disk is not None and set(shared[backend.plugin]) == set(backend.shared_functions):
+            disk.save(disk_name, shared[backend.plugin], kind="nlp")
+    if cache:
+        _CACHE.put(key, (nlp, solver, recorder))
+    return nlp, solver, recorder, "built" if not given else source
+
+
+def _derivatives_key(nlp: NLPProblem, backend: NLPBackend) -> str:
+    """Disk-cache name of a graph's derivative functions: a hash of the graph
+    itself (its CasADi serialisation, ~30 ms at K = 20), CasADi's version and
+    the plug-in. The functions are derived from nothing else, so an entry
+    can only be found by the graph it was derived from."""
+    h = hashlib.sha256()
+    for part in (MODEL_REVISION, ca.__version__, backend.plugin, sorted(backend.shared_functions.items())):
+        h.update(repr(part).encode())
+    h.update(ca.Function("nlp", [nlp.z, nlp.p], [nlp.f, nlp.g]).serialize().encode())
+    return h.hexdigest()[:40]
+
+
+def _derivatives(solver: Any, names: dict) -> dict:
+    """``{option: function}`` of the derivative functions ``solver`` has (an
+    option such as a quasi-Newton Hessian leaves some out)."""
+    out = {}
+    for option, name in names.items():
+        try:
+            out[option] = solver.get_function(name)
+        except RuntimeError:
+            pass
+    return out
