@@ -41,7 +41,6 @@ Four studies:
 from __future__ import annotations
 
 import argparse
-import contextlib
 import glob
 import json
 import os
@@ -302,21 +301,8 @@ def variant_study(args, variants: dict) -> dict:
     return out
 
 
-@contextlib.contextmanager
-def _auto_floor(floor: float):
-    """auto's IPOPT stage with ``floor`` (auto has no floor option: it calls
-    ``ipopt.run`` with the engine's defaults)."""
-    saved = ipopt.run
-    ipopt.run = lambda problem, **kw: saved(problem, **{"floor": floor, **kw})
-    try:
-        yield
-    finally:
-        ipopt.run = saved
-
-
 def _auto(sc, start, alpha: float, floor: float) -> dict:
-    with _auto_floor(floor):
-        r = bn.smooth(sc, start, method="auto", alpha=alpha)
+    r = bn.smooth(sc, start, method="auto", alpha=alpha, ipopt_options={"floor": floor})
     return {"status": r.status, "cost": r.cost, "method": r.method, "iterations": int(r.stats.get("iter_count", 0)),
             "cpu_s": float(r.stats.get("cpu_time", 0.0)),
             "verified": bool(r.path is not None and bn.verify(sc, r.path).safe)}

@@ -45,3 +45,23 @@ def test_polish_never_raises_the_cost(small):
     polished = bn.smooth(sc, path, method="auto", alpha=1.0, ccp_polish=3)
     assert polished.cost <= plain.cost * (1 + 1e-12) and polished.safe
     assert polished.method in ("auto:ipopt+ccp", "auto:ipopt")
+
+
+def test_the_ipopt_stage_takes_ipopts_method_options(small):
+    """``ipopt_options`` are the first stage's method options: auto's IPOPT
+    stage with floor 5e-3 is method "ipopt" with floor 5e-3 (the same
+    iterations and point); bad keys and values are our errors naming the field."""
+    sc, path = small
+    alone = bn.smooth(sc, path, method="ipopt", alpha=1.0, floor=5e-3)
+    auto = bn.smooth(sc, path, alpha=1.0, ipopt_options={"floor": 5e-3}, ccp_polish=0)
+    default = bn.smooth(sc, path, alpha=1.0, ccp_polish=0)
+    assert auto.method == "auto:ipopt" and auto.stats["ipopt"]["iter_count"] == alone.stats["iter_count"]
+    assert auto.cost == alone.cost and bn.verify(sc, auto.path).safe
+    assert [a["iter_count"] for a in auto.stats["ipopt"]["attempts"]] != \
+        [a["iter_count"] for a in default.stats["ipopt"]["attempts"]] or auto.cost != default.cost
+    with pytest.raises(bn.ValidationError, match="ipopt_options.*'flor' is not an option"):
+        bn.smooth(sc, path, ipopt_options={"flor": 5e-3})
+    with pytest.raises(bn.ValidationError, match="ipopt_options.*'polish'"):
+        bn.smooth(sc, path, ipopt_options={"polish": -1})
+    with pytest.raises(bn.ValidationError, match="ipopt_options"):
+        bn.smooth(sc, path, ipopt_options=[("floor", 5e-3)])

@@ -67,15 +67,17 @@ def _totals(stats: dict, answer: str) -> dict:
 
 
 def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | None = None, ccp_solver: str = "CLARABEL",
-        ccp_solver_options: dict | None = None) -> Outcome:
+        ccp_solver_options: dict | None = None, ipopt_options: dict | None = None) -> Outcome:
     """IPOPT, then CCP when IPOPT's answer is not taken (module doc). The
-    run's ``solver_options`` go to IPOPT; CCP's come from ``ccp_solver_options``."""
+    run's ``solver_options`` go to IPOPT; CCP's come from ``ccp_solver_options``;
+    ``ipopt_options`` are the first stage's method options (``floor``,
+    ``polish``, ...: those of ``method="ipopt"``)."""
     ccp_opts = (ccp_solver, ccp_solver_options or {})
     if ccp_polish is None:       # under a risk budget a CCP step is ~10x dearer (no active-set step): no polish
         ccp_polish = POLISH if problem.model.data.budget is None else 0
     reserve = min(ccp_reserve, problem.max_iter // 2)
     first = _stage(problem, problem.max_iter - reserve, FIRST_STAGE.run, FIRST_STAGE.METHOD.default_solver,
-                   problem.solver_options)
+                   problem.solver_options, **(ipopt_options or {}))
     stats: dict[str, Any] = {"ipopt": first.stats, "stages": ["ipopt"]}
     if first.status == "converged" and first.point is not None:
         chk = problem.check(first.point)
@@ -105,6 +107,22 @@ def _count(v: Any) -> str | None:
     return None if isinstance(v, int) and not isinstance(v, bool) and v >= 0 else "must be an integer >= 0"
 
 
+def _check_first_stage_options(v: Any) -> str | None:
+    """``ipopt_options``: a dict of the first stage's method options, each checked as that method checks it."""
+    if v is None:
+        return None
+    if not isinstance(v, dict):
+        return "must be a dict of the first stage's method options"
+    known = {k: o for k, o in FIRST_STAGE.METHOD.options.items() if not k.startswith("_")}
+    for key, value in v.items():
+        if key not in known:
+            return f"{key!r} is not an option of method {FIRST_STAGE.METHOD.name!r} (options: {sorted(known)})"
+        bad = known[key].check(value) if known[key].check is not None else None
+        if bad:
+            return f"{key!r} {bad}"
+    return None
+
+
 METHOD = register(Method(
     name="auto", run=run, max_iter=3000, default_solver=FIRST_STAGE.METHOD.default_solver,
     check_solver=lambda s: None if s.upper() == FIRST_STAGE.METHOD.default_solver.upper()
@@ -118,5 +136,8 @@ METHOD = register(Method(
                                    lambda v: None if v is None else _count(v)),
              "ccp_solver": Option("CLARABEL", "conic solver of the CCP stage", ccp._check_solver),
              "ccp_solver_options": Option(None, "solver options of the CCP stage (solver_options go to IPOPT)",
-                                          lambda v: None if v is None or isinstance(v, dict) else "must be a dict")},
+                                          lambda v: None if v is None or isinstance(v, dict) else "must be a dict"),
+             "ipopt_options": Option(None, "method options of the IPOPT stage, e.g. {'floor': 5e-3} (those of "
+                                           "method 'ipopt'; solver_options are IPOPT's own)",
+                                     _check_first_stage_options)},
 ))
