@@ -28,9 +28,12 @@ def _cmd_cache(run: _Run) -> int:
     from ..model.cache import DiskCache, disk_cache
 
     a = run.args
-    disk = DiskCache(a.dir) if a.dir is not None else (disk_cache() or DiskCache())
-    state = "on (BELIEF_NLP_CACHE_DIR)" if a.dir is None and disk_cache() is not None else \
-        "off in this environment (BELIEF_NLP_CACHE_DIR unset)" if a.dir is None else "given by --dir"
+    if a.dir is not None:
+        disk, state = DiskCache(a.dir), "given by --dir"
+    elif disk_cache() is not None:
+        disk, state = disk_cache(), "on (BELIEF_NLP_CACHE_DIR)"
+    else:
+        disk, state = DiskCache(), "off in this environment (BELIEF_NLP_CACHE_DIR unset)"
     if a.clear:
         n, size = disk.clear()
         print(f"{disk.dir}: deleted {n} entries ({size / 2**20:.1f} MB)")

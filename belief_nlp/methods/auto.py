@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..errors import ValidationError
 from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.registry import Method, Option, register
 from . import ccp, ipopt
@@ -108,18 +109,15 @@ def _count(v: Any) -> str | None:
 
 
 def _check_first_stage_options(v: Any) -> str | None:
-    """``ipopt_options``: a dict of the first stage's method options, each checked as that method checks it."""
+    """``ipopt_options``: the first stage's method options, checked as that method checks them."""
     if v is None:
         return None
     if not isinstance(v, dict):
         return "must be a dict of the first stage's method options"
-    known = {k: o for k, o in FIRST_STAGE.METHOD.options.items() if not k.startswith("_")}
-    for key, value in v.items():
-        if key not in known:
-            return f"{key!r} is not an option of method {FIRST_STAGE.METHOD.name!r} (options: {sorted(known)})"
-        bad = known[key].check(value) if known[key].check is not None else None
-        if bad:
-            return f"{key!r} {bad}"
+    try:
+        FIRST_STAGE.METHOD.validate(v)
+    except ValidationError as exc:
+        return f"{exc.field!r} {exc.problem}"
     return None
 
 

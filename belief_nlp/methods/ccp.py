@@ -71,7 +71,8 @@ def compiled_step(model: BeliefModel, solver: str = "CLARABEL", cache_dir: str |
                   chi2_margin: float = CHI2_MARGIN, proximal: float = 0.0) -> tuple[CompiledProblem, str, DiskCache | None]:
     """The compiled CVXPY problem of ``model``'s CCP step: from memory, from the
     disk cache (``cache_dir``: None = the process's, :func:`belief_nlp.set_disk_cache`;
-    True = the user's cache folder; a folder; False = none), else compiled. ``proximal``: the step with that proximal weight
+    True = the user's cache folder; a folder; False = none), else compiled.
+    ``proximal``: the step with that proximal weight
     (:func:`belief_nlp.model.doc.convex_form`). Returns (problem, where it
     came from, the disk cache)."""
     key = problem_key(model.data, chi2_margin, solver, proximal)

@@ -26,7 +26,6 @@ _CACHE = MemoryCache(16)
 _GRAPHS = MemoryCache(8)
 
 
-
 def clear_cache() -> None:
     """Drop every cached NLP / solver instance."""
     _CACHE.clear()
@@ -65,7 +64,7 @@ def _nlp(problem: SmoothingProblem, formulation: str, margin: float, regularisat
 
 
 def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulation: str, margin: float,
-            regularisation: float, floor: float, candidates: int, cache: bool) -> tuple[NLPProblem, Any, Recorder, str]:
+              regularisation: float, floor: float, candidates: int, cache: bool) -> tuple[NLPProblem, Any, Recorder, str]:
     """NLP, nlpsol instance and recorder, from the cache when the model and options match."""
     # the floor shapes only the "logchol" NLP: it stays out of the other
     # formulations' keys (no second build of an identical NLP); alpha is the
@@ -87,8 +86,7 @@ def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formul
     if disk is not None:
         disk_name = _derivatives_key(nlp, backend)
         loaded = disk.load(disk_name, kind="nlp")
-        if isinstance(loaded, dict) and set(loaded) == set(backend.shared_functions) \
-                and all(isinstance(f, ca.Function) for f in loaded.values()):
+        if _complete(loaded, backend):
             given, source, disk = loaded, "built (derivatives from disk)", None
             shared[backend.plugin] = loaded
     recorder = Recorder(nlp, keep=candidates, bar=None, stall=0)
@@ -103,7 +101,7 @@ def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formul
                               f"{backend.name} refused them: {str(exc).splitlines()[-1][:200]}") from None
     if nlp is view and backend.shared_functions and not given:
         shared[backend.plugin] = _derivatives(solver, backend.shared_functions)
-        if disk is not None and set(shared[backend.plugin]) == set(backend.shared_functions):
+        if disk is not None and _complete(shared[backend.plugin], backend):
             disk.save(disk_name, shared[backend.plugin], kind="nlp")
     if cache:
         _CACHE.put(key, (nlp, solver, recorder))
@@ -120,6 +118,13 @@ def _derivatives_key(nlp: NLPProblem, backend: NLPBackend) -> str:
         h.update(repr(part).encode())
     h.update(ca.Function("nlp", [nlp.z, nlp.p], [nlp.f, nlp.g]).serialize().encode())
     return h.hexdigest()[:40]
+
+
+def _complete(functions: Any, backend: NLPBackend) -> bool:
+    """Every derivative function the backend shares, as CasADi functions (what
+    the disk cache stores, and all a loaded entry may be used for)."""
+    return isinstance(functions, dict) and set(functions) == set(backend.shared_functions) \
+        and all(isinstance(f, ca.Function) for f in functions.values())
 
 
 def _derivatives(solver: Any, names: dict) -> dict:

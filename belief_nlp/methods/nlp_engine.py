@@ -141,7 +141,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         opts, restarts = {**opts, backend.limit_key: max(int(max_iter) - 1, 0)}, 0
     t_build = time.perf_counter()
     nlp, solver, recorder, stage.build = solver_of(problem, backend, opts, formulation, margin, regularisation, floor,
-                                                 max(int(candidates), 0), cache)
+                                                   max(int(candidates), 0), cache)
     stage.build_time = time.perf_counter() - t_build
     stage.limit = int(max_iter)
     recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0)

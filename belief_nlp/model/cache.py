@@ -219,52 +219,52 @@ class DiskCache:
         """The folder's entries (every kind)."""
         return [p for p in self.dir.glob("*.pkl") if not p.name.startswith(".tmp-")]
 
+    def _sized(self) -> list[tuple[float, int, Path]]:
+        """(mtime, bytes, path) of every entry, least recently used first (an
+        entry removed meanwhile by another process is left out)."""
+        out = []
+        for p in self.entries():
+            try:
+                st = p.stat()
+            except OSError:
+                continue
+            out.append((st.st_mtime, st.st_size, p))
+        return sorted(out, key=lambda t: t[0])
+
     def summary(self) -> dict[str, tuple[int, int]]:
         """{kind: (entries, bytes)} of the folder."""
         out: dict[str, tuple[int, int]] = {}
-        for p in self.entries():
-            kind = p.name.split(".")[-2]
-            n, size = out.get(kind, (0, 0))
-            try:
-                out[kind] = (n + 1, size + p.stat().st_size)
-            except OSError:
-                pass
+        for _, size, p in self._sized():
+            kind = p.name.split(".")[-2]          # <key>.<kind>.pkl
+            n, total = out.get(kind, (0, 0))
+            out[kind] = (n + 1, total + size)
         return out
 
     def clear(self) -> tuple[int, int]:
         """Delete every entry (the key stays); returns (entries, bytes) deleted."""
-        n = size = 0
-        for p in self.entries():
-            try:
-                st = p.stat()
-                p.unlink()
-                n, size = n + 1, size + st.st_size
-            except OSError:
-                pass
-        return n, size
+        return self._delete(self._sized(), limit=0)
 
     def _evict(self, keep: Path) -> None:
         """Delete the least recently used entries (file mtime: written or
         loaded) until the folder is within ``max_bytes``; never ``keep``."""
-        sized = []
-        for p in self.entries():
-            try:
-                st = p.stat()
-            except OSError:             # removed meanwhile by another process
-                continue
-            sized.append((st.st_mtime, st.st_size, p))
-        total = sum(size for _, size, _ in sized)
-        for _, size, p in sorted(sized, key=lambda t: t[0]):
-            if total <= self.max_bytes:
+        sized = self._sized()
+        self._delete([e for e in sized if e[2] != keep], limit=self.max_bytes, total=sum(e[1] for e in sized))
+
+    @staticmethod
+    def _delete(sized: list, limit: int, total: int | None = None) -> tuple[int, int]:
+        """Delete ``sized``'s entries in order while ``total`` (default: their
+        bytes) is above ``limit``; returns (entries, bytes) deleted."""
+        total = sum(e[1] for e in sized) if total is None else total
+        n = freed = 0
+        for _, size, p in sized:
+            if total - freed <= limit:
                 break
-            if p == keep:
-                continue
             try:
                 p.unlink()
-                total -= size
+                n, freed = n + 1, freed + size
             except OSError:
                 pass
-
+        return n, freed
 
 _DISK: dict = {"set": False, "cache": None}
 
@@ -272,8 +272,9 @@ _DISK: dict = {"set": False, "cache": None}
 def set_disk_cache(where: bool | str | Path | None = True, max_mb: float = MAX_BYTES / 2**20) -> DiskCache | None:
     """Keep compiled problems on disk across processes, or stop doing so.
 
-    What a process's first call builds (IPOPT's derivative functions, the
-    active-set step's Clarabel data, the CVXPY problem of the CCP step) is
+    What a process's first call builds (the NLP graph, IPOPT's derivative
+    functions, the active-set step's Clarabel data, the CVXPY problem of the
+    CCP step) is
     then loaded by later processes -- notebook kernels, study workers, CLI
     runs -- instead of built (measured: docs/numerics.md, "Construction cost").
 
