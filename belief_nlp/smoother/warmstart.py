@@ -308,10 +308,8 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
         # instead of one per halving: most transitions need one to three)
         rows = _HALVING_BATCH
         while True:
-            cand = np.empty((rows, *W.shape))
-            cand[0] = P[k - 1]
-            for i in range(1, rows):
-                cand[i] = 0.5 * cand[i - 1]
+            # P / 2^i: scaling by a power of two is exact, so the same bits as halving i times
+            cand = P[k - 1][None] * (0.5 ** np.arange(rows))[:, None, None]
             tm = transition_minimiser(np.repeat(x[k - 1][None], rows, axis=0), cand,
                                       np.repeat(x[k][None], rows, axis=0), W, hazards, threshold=thr)
             clear = np.flatnonzero(~np.any(tm.dist2 < thr, axis=1))
