@@ -7,6 +7,7 @@ import os
 # the suite is hermetic: no disk cache from the developer's environment (the
 # tests of the disk cache switch it on in their own folders)
 os.environ["BELIEF_NLP_CACHE_DIR"] = "0"
+os.environ["BELIEF_NLP_CACHE_COMPILE"] = "0"
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402

@@ -9,6 +9,7 @@ import os
 import pickle
 import subprocess
 import sys
+import time
 
 import casadi as ca
 import numpy as np
@@ -16,7 +17,7 @@ import pytest
 
 import belief_nlp as bn
 from belief_nlp.errors import ValidationError
-from belief_nlp.methods import nlp_engine
+from belief_nlp.methods import nlp_compiled, nlp_engine
 from belief_nlp.model import cache as cache_mod
 from belief_nlp.model.cache import MEMORY, DiskCache, disk_cache, set_disk_cache
 from belief_nlp.model import BeliefModel
@@ -35,16 +36,17 @@ def fresh():
     """Memory caches empty (as in a new process) and the process's disk
     cache setting restored afterwards."""
     saved = dict(cache_mod._DISK)
-    env = os.environ.get(cache_mod.ENV_DIR)
+    env = {name: os.environ.get(name) for name in (cache_mod.ENV_DIR, cache_mod.ENV_COMPILE)}
     nlp_engine.clear_cache()
     MEMORY.clear()
     yield
     cache_mod._DISK.clear()
     cache_mod._DISK.update(saved)
-    if env is None:
-        os.environ.pop(cache_mod.ENV_DIR, None)
-    else:
-        os.environ[cache_mod.ENV_DIR] = env
+    for name, value in env.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
     nlp_engine.clear_cache()
     MEMORY.clear()
 
@@ -201,3 +203,109 @@ def test_the_cli_shows_and_clears_a_cache_folder(small, fresh, tmp_path, capsys)
     assert DiskCache(tmp_path).entries() == [] and (tmp_path / "hmac.key").exists()
     assert main(["cache", "--bogus"]) == EXIT_BAD_INPUT
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+# -- compiled derivative functions (methods/nlp_compiled.py) -------------------------------------------
+
+needs_cc = pytest.mark.skipif(nlp_compiled.compiler() is None, reason="no C compiler on this machine")
+
+
+@pytest.fixture
+def tiny():
+    return paper_multi_path_pair(steps_per_segment=1)          # K = 5: a few seconds of gcc
+
+
+def _compiled_run(tiny, tmp_path, monkeypatch):
+    """A first process with compilation on (the background build replaced by
+    a record of its calls), then the library built in the foreground."""
+    sc, path = tiny
+    started = []
+    monkeypatch.setattr(nlp_compiled, "start", lambda disk, name: started.append(name) or True)
+    set_disk_cache(tmp_path, compile=True)
+    first = bn.smooth(sc, path, alpha=0.1, method="ipopt")
+    assert first.stats["build"] == "built" and len(started) == 1
+    lib = nlp_compiled.compile_entry(tmp_path, started[0])
+    assert lib is not None and lib.exists() and oct(lib.stat().st_mode & 0o777) == "0o600"
+    _forget()
+    return started[0], first
+
+
+@needs_cc
+def test_compiled_derivatives_are_loaded_and_give_the_same_answers_bit_for_bit(tiny, fresh, tmp_path, monkeypatch):
+    sc, path = tiny
+    set_disk_cache(False)
+    reference = bn.smooth(sc, path, alpha=0.1, method="ipopt")
+    _forget()
+    name, first = _compiled_run(tiny, tmp_path, monkeypatch)
+    assert sorted(DiskCache(tmp_path).summary()) == ["cso", "graph", "lib", "nlp"]
+    again = bn.smooth(sc, path, alpha=0.1, method="ipopt")
+    assert again.stats["build"] == "built (derivatives compiled)"
+    for res in (first, again):
+        assert res.cost == reference.cost and res.nit == reference.nit and res.safe
+        np.testing.assert_array_equal(res.path.x, reference.path.x)
+        np.testing.assert_array_equal(res.path.S, reference.path.S)
+    # each compiled function is the serialised one, bit for bit, at points of its own
+    compiled = nlp_compiled.load(DiskCache(tmp_path), name)
+    serialised = DiskCache(tmp_path).load(name, kind="nlp")
+    rng = np.random.default_rng(5)
+    for option, f in serialised.items():
+        args = [rng.normal(size=f.nnz_in(i)) for i in range(f.n_in())]
+        for u, v in zip(nlp_compiled._values(f, args), nlp_compiled._values(compiled[option], args)):
+            np.testing.assert_array_equal(u, v)
+
+
+@needs_cc
+def test_a_library_other_than_the_signed_one_is_never_loaded(tiny, fresh, tmp_path, monkeypatch):
+    sc, path = tiny
+    name, first = _compiled_run(tiny, tmp_path, monkeypatch)
+    disk = DiskCache(tmp_path)
+    meta = disk.load(name, kind="cso")
+    # values that the library does not reproduce (as from a miscompiled library): refused
+    wrong = pickle.loads(pickle.dumps(meta))
+    wrong["values"]["hess_lag"][0][0] += 1e-12
+    disk.save(name, wrong, kind="cso")
+    assert nlp_compiled.load(disk, name) is None
+    disk.save(name, meta, kind="cso")
+    assert nlp_compiled.load(disk, name) is not None
+    # a changed library file: not the signed digest, never opened
+    lib = tmp_path / f"{name}.lib.so"
+    blob = bytearray(lib.read_bytes())
+    blob[len(blob) // 2] ^= 0xFF
+    lib.write_bytes(bytes(blob))
+    assert nlp_compiled.load(disk, name) is None
+    again = bn.smooth(sc, path, alpha=0.1, method="ipopt")
+    assert again.stats["build"] == "built (derivatives from disk)" and again.cost == first.cost
+
+
+@needs_cc
+def test_the_library_is_built_by_a_background_process(tiny, fresh, tmp_path):
+    sc, path = tiny
+    set_disk_cache(tmp_path, compile=True)
+    assert os.environ[cache_mod.ENV_COMPILE] == "1"
+    first = bn.smooth(sc, path, alpha=0.1, method="ipopt")
+    assert first.stats["build"] == "built"
+    deadline = time.monotonic() + 240
+    while not any(p.name.endswith(".cso.pkl") for p in DiskCache(tmp_path).entries()):
+        assert time.monotonic() < deadline, "the background build did not finish in 240 s"
+        time.sleep(0.5)
+    assert not list(tmp_path.glob(".*.compiling"))                 # its lock is gone
+    _forget()
+    again = bn.smooth(sc, path, alpha=0.1, method="ipopt")
+    assert again.stats["build"] == "built (derivatives compiled)" and again.cost == first.cost
+
+
+def test_without_a_compiler_nothing_is_started_and_settings_are_checked(fresh, tmp_path, monkeypatch):
+    monkeypatch.setattr(nlp_compiled, "compiler", lambda: None)
+    assert nlp_compiled.start(DiskCache(tmp_path), "x" * 40) is False
+    assert not list(tmp_path.glob(".*"))
+    with pytest.raises(ValidationError, match="compile"):
+        set_disk_cache(False, compile=True)
+    with pytest.raises(ValidationError, match="compile"):
+        set_disk_cache(tmp_path, compile="yes")
+    set_disk_cache(tmp_path)
+    assert not cache_mod.compile_enabled() and os.environ[cache_mod.ENV_COMPILE] == "0"
+    for value, expect in (("1", True), ("0", False), ("", False)):
+        monkeypatch.setenv(cache_mod.ENV_DIR, str(tmp_path))
+        monkeypatch.setenv(cache_mod.ENV_COMPILE, value)
+        cache_mod._DISK.update(set=False, cache=None)
+        assert cache_mod.compile_enabled() is expect

@@ -13,7 +13,8 @@ def add_parser(sub) -> None:
     cp = sub.add_parser(
         "cache", help="show or clear the disk cache of compiled problems",
         description="The disk cache keeps what a process builds for a (scenario, K) -- the NLP graph, IPOPT's "
-                    "derivative functions, the CCP step's data -- for later processes. It is off unless "
+                    "derivative functions (with BELIEF_NLP_CACHE_COMPILE=1 also compiled: kinds 'lib' and 'cso'), the "
+                    "CCP step's data -- for later processes. It is off unless "
                     "BELIEF_NLP_CACHE_DIR is set (a folder, or 1 for the user's cache folder) or a program calls "
                     "belief_nlp.set_disk_cache. Without --dir this shows the folder BELIEF_NLP_CACHE_DIR names, "
                     "else the user's cache folder: its entries by kind and size; --clear deletes them.",
@@ -25,13 +26,14 @@ def add_parser(sub) -> None:
 
 
 def _cmd_cache(run: _Run) -> int:
-    from ..model.cache import DiskCache, disk_cache
+    from ..model.cache import DiskCache, compile_enabled, disk_cache
 
     a = run.args
     if a.dir is not None:
         disk, state = DiskCache(a.dir), "given by --dir"
     elif disk_cache() is not None:
-        disk, state = disk_cache(), "on (BELIEF_NLP_CACHE_DIR)"
+        disk = disk_cache()
+        state = "on (BELIEF_NLP_CACHE_DIR" + (", compiling: BELIEF_NLP_CACHE_COMPILE)" if compile_enabled() else ")")
     else:
         disk, state = DiskCache(), "off in this environment (BELIEF_NLP_CACHE_DIR unset)"
     if a.clear:

@@ -12,9 +12,10 @@ from typing import Any
 import casadi as ca
 
 from ..errors import ValidationError
-from ..model.cache import MODEL_REVISION, MemoryCache, disk_cache, problem_key
+from ..model.cache import MODEL_REVISION, MemoryCache, compile_enabled, disk_cache, problem_key
 from ..model.nlp_form import NLPProblem, build_nlp
 from ..smoother.context import SmoothingProblem
+from . import nlp_compiled
 from .nlp_backend import NLPBackend
 from .nlp_recorder import Recorder
 
@@ -85,10 +86,19 @@ def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formul
     disk = disk_cache() if cache and nlp is view and backend.shared_functions and not given else None
     if disk is not None:
         disk_name = _derivatives_key(nlp, backend)
-        loaded = disk.load(disk_name, kind="nlp")
+        compiled = compile_enabled()
+        loaded = nlp_compiled.load(disk, disk_name) if compiled else None
         if _complete(loaded, backend):
-            given, source, disk = loaded, "built (derivatives from disk)", None
-            shared[backend.plugin] = loaded
+            given, source, disk = loaded, "built (derivatives compiled)", None
+        else:
+            loaded = disk.load(disk_name, kind="nlp")
+            if _complete(loaded, backend):
+                given, source = loaded, "built (derivatives from disk)"
+                if compiled:            # an earlier build died, or was evicted: build it again
+                    nlp_compiled.start(disk, disk_name)
+                disk = None
+        if given:
+            shared[backend.plugin] = given
     recorder = Recorder(nlp, keep=candidates, bar=None, stall=0)
     recorder.log_path = backend.log_file()
     try:
@@ -101,8 +111,9 @@ def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formul
                               f"{backend.name} refused them: {str(exc).splitlines()[-1][:200]}") from None
     if nlp is view and backend.shared_functions and not given:
         shared[backend.plugin] = _derivatives(solver, backend.shared_functions)
-        if disk is not None and _complete(shared[backend.plugin], backend):
-            disk.save(disk_name, shared[backend.plugin], kind="nlp")
+        if disk is not None and _complete(shared[backend.plugin], backend) \
+                and disk.save(disk_name, shared[backend.plugin], kind="nlp") is not None and compile_enabled():
+            nlp_compiled.start(disk, disk_name)
     if cache:
         _CACHE.put(key, (nlp, solver, recorder))
     return nlp, solver, recorder, "built" if not given else source
