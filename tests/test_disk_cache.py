@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import shutil
 import subprocess
 import sys
 import time
@@ -309,3 +310,21 @@ def test_without_a_compiler_nothing_is_started_and_settings_are_checked(fresh, t
         monkeypatch.setenv(cache_mod.ENV_COMPILE, value)
         cache_mod._DISK.update(set=False, cache=None)
         assert cache_mod.compile_enabled() is expect
+
+
+def test_a_failing_compiler_is_recorded_and_not_run_again_by_every_process(tiny, fresh, tmp_path, monkeypatch):
+    sc, path = tiny
+    set_disk_cache(tmp_path)
+    bn.smooth(sc, path, alpha=0.1, method="ipopt")                  # the serialised entry
+    (entry,) = [p for p in DiskCache(tmp_path).entries() if p.name.endswith(".nlp.pkl")]
+    name = entry.name.split(".")[0]
+    false = shutil.which("false")
+    if false is None:
+        pytest.skip("no 'false' command to stand in for a failing compiler")
+    monkeypatch.setenv("CC", false)
+    lock = tmp_path / f".{name}.compiling"
+    lock.touch()
+    assert nlp_compiled._main([str(tmp_path), name, str(lock)]) == 1
+    assert not lock.exists() and (tmp_path / f".{name}.failed").exists()
+    assert nlp_compiled.start(DiskCache(tmp_path), name) is False      # not again for a day
+    assert not lock.exists() and not list(tmp_path.glob("*.so"))

@@ -51,6 +51,8 @@ log = logging.getLogger("belief_nlp.cache")
 CFLAGS = ("-O1", "-ffp-contract=off", "-fPIC", "-shared")
 #: a lock older than this is taken to belong to a compile process that died
 STALE_LOCK_S = 1800.0
+#: after a failed build, processes do not try that entry again for this long
+RETRY_AFTER_S = 86400.0
 
 
 def compiler() -> str | None:
@@ -63,6 +65,11 @@ def compiler() -> str | None:
 
 def _library(disk: DiskCache, name: str) -> Path:
     return disk.dir / f"{name}.lib.so"
+
+
+def _failed(directory: str | Path, name: str) -> Path:
+    """Marker of a failed build (a compiler error would otherwise be repeated by every process)."""
+    return Path(directory) / f".{name}.failed"
 
 
 def _fingerprint(functions: dict[str, ca.Function]) -> tuple[dict, dict]:
@@ -139,12 +146,14 @@ def compile_entry(directory: str | Path, name: str, cc: str | None = None) -> Pa
 
 def start(disk: DiskCache, name: str) -> bool:
     """Start the background build of entry ``name``'s library unless it exists,
-    another process is building it, or there is no C compiler; True when
-    started. The caller goes on at once."""
+    another process is building it, a build of it failed in the last day, or
+    there is no C compiler; True when started. The caller goes on at once."""
     if compiler() is None or _library(disk, name).exists():
         return False
-    lock = disk.dir / f".{name}.compiling"
+    lock, failed = disk.dir / f".{name}.compiling", _failed(disk.dir, name)
     try:
+        if failed.exists() and time.time() - failed.stat().st_mtime < RETRY_AFTER_S:
+            return False
         if lock.exists() and time.time() - lock.stat().st_mtime > STALE_LOCK_S:
             lock.unlink()
         fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
@@ -152,9 +161,14 @@ def start(disk: DiskCache, name: str) -> bool:
     except OSError:                      # someone else is building it (or the folder is gone)
         return False
     env = {**os.environ, ENV_COMPILE: "0"}
-    subprocess.Popen([sys.executable, "-m", __name__, str(disk.dir), name, str(lock)], env=env,
-                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                     start_new_session=True, close_fds=True)
+    try:
+        subprocess.Popen([sys.executable, "-m", __name__, str(disk.dir), name, str(lock)], env=env,
+                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True, close_fds=True)
+    except OSError as exc:               # never fatal to the caller's solve
+        log.warning("could not start the compilation of cache entry %s: %s", name, exc)
+        lock.unlink(missing_ok=True)
+        return False
     return True
 
 
@@ -162,12 +176,13 @@ def _main(argv: list[str]) -> int:
     directory, name, lock = argv
     try:
         os.nice(10)                      # the user's own work comes first
-    except OSError:
+    except (OSError, AttributeError):    # AttributeError: no os.nice (Windows)
         pass
     try:
         return 0 if compile_entry(directory, name) is not None else 1
-    except Exception as exc:
+    except Exception as exc:             # a compiler error: not tried again by every process
         log.warning("could not compile cache entry %s: %s", name, exc)
+        _failed(directory, name).touch(mode=0o600)
         return 1
     finally:
         Path(lock).unlink(missing_ok=True)
