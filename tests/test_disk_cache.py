@@ -305,7 +305,7 @@ def test_without_a_compiler_nothing_is_started_and_settings_are_checked(fresh, t
         set_disk_cache(tmp_path, compile="yes")
     set_disk_cache(tmp_path)
     assert not cache_mod.compile_enabled() and os.environ[cache_mod.ENV_COMPILE] == "0"
-    for value, expect in (("1", True), ("0", False), ("", False)):
+    for value, expect in (("1", True), ("yes", True), ("0", False), ("", False), ("maybe", False)):
         monkeypatch.setenv(cache_mod.ENV_DIR, str(tmp_path))
         monkeypatch.setenv(cache_mod.ENV_COMPILE, value)
         cache_mod._DISK.update(set=False, cache=None)

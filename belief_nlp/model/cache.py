@@ -349,7 +349,12 @@ def disk_cache() -> DiskCache | None:
     if not _DISK["set"]:
         value = os.environ.get(ENV_DIR, "").strip()
         cache = None if _off(value) else DiskCache(None if value == "1" else value)
-        _DISK.update(set=True, cache=cache, compile=cache is not None and not _off(os.environ.get(ENV_COMPILE, "")))
+        flag = os.environ.get(ENV_COMPILE, "")
+        on = flag.strip().lower() in ("1", "on", "true", "yes")
+        if not on and not _off(flag):
+            log.warning("%s=%r is neither on (1, on, true, yes) nor off (0, off, false, no, empty): "
+                        "not compiling", ENV_COMPILE, flag)
+        _DISK.update(set=True, cache=cache, compile=cache is not None and on)
     return _DISK["cache"]
 
 
