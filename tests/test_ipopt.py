@@ -273,14 +273,16 @@ def test_polish_on_shared_derivatives_equals_a_fresh_cholesky_solver(small_start
     np.testing.assert_allclose(col, np.stack([start, end], axis=-1).ravel(), rtol=1e-8, atol=1e-8)
 
 
-def test_history_cost_parts_are_the_nlp_parts_of_the_iterates(small_start):
+def test_history_cost_parts_are_the_nlp_parts_of_the_iterates(small_start, monkeypatch):
     """The recorder's control and information (evaluated in the iteration
     callback) are the NLP's cost parts of the iterates it stored, and the
     history's costs are control + alpha information."""
     from belief_nlp.methods import nlp_engine
     from belief_nlp.methods.ipopt import clear_cache
+    from belief_nlp.methods.nlp_recorder import Recorder
 
     sc, ws = small_start
+    monkeypatch.setattr(Recorder, "keep_all_iterates", True)
     clear_cache()
     res = bn.smooth(sc, ws, method="ipopt", max_iter=3000, alpha=0.7)
     checked = 0

@@ -71,6 +71,7 @@ def test_recorder_buffers_and_dms_record_alike(recorder):
     rows = []
     for via_buffer in (True, False):
         rec = Recorder(nlp, keep=3, bar=None)
+        rec.keep_all_iterates = True
         rec.begin(pv, 10, None)
         for i in range(3):
             x = zv * (1 + 1e-3 * i)
@@ -92,3 +93,21 @@ def test_recorder_buffers_and_dms_record_alike(recorder):
     assert rec.rows[-1][2] == float(max(np.max(nlp.lbg - g_x, initial=0.0), np.max(g_x - nlp.ubg, initial=0.0)))
     assert rec.rows[-1][1] == float(min(np.min(g_x[:nlp.n_collision]),
                                         np.min(g_x[nlp.n_collision:nlp.n_collision + nlp.info["n_target"]])))
+
+
+def test_a_recorder_keeps_only_its_best_candidates_by_default(recorder):
+    """Without keep_all_iterates the iterates are not all held (every one of a
+    K = 80 solve is tens of MB, kept as long as the cached solver): only the
+    ``keep`` best feasible ones, the same as with them all."""
+    nlp, zv, pv, gv = recorder
+    gv = np.clip(gv, nlp.lbg, nlp.ubg)          # rows within their bounds: every iterate a candidate
+    best = []
+    for keep_all in (False, True):
+        rec = Recorder(nlp, keep=2, bar=None)
+        rec.keep_all_iterates = keep_all
+        rec.begin(pv, 10, None)
+        for i in range(6):
+            rec(zv * (1 + 1e-3 * i), 1.0 - 0.01 * i, gv, [], [], [])
+        assert len(rec.zs) == (5 if keep_all else 0) and len(rec.best) <= 2
+        best.append([(c, it, z.tobytes()) for c, it, z in sorted(rec.best)])
+    assert best[0] == best[1] and len(best[0]) == 2

@@ -21,6 +21,11 @@ class Recorder(ca.Callback):
     One recorder serves every attempt (restart) of a solve; ``begin`` resets
     the per-attempt counter and sets the parameter values."""
 
+    #: keep every iterate in ``zs`` (tests compare the rows with them); off,
+    #: a recorder holds only its ``keep`` best candidates: every iterate of a
+    #: K = 80 solve is tens of MB, held as long as the cached solver
+    keep_all_iterates = False
+
     def __init__(self, nlp: NLPProblem, keep: int, bar, stall: int = 0):
         ca.Callback.__init__(self)
         self.nlp = nlp
@@ -42,7 +47,7 @@ class Recorder(ca.Callback):
         self.best_it = 0
         self.t_last = time.perf_counter()
         self.rows: list[tuple] = []            # (iteration, min margin, violation, dt, kalman gap, control, info)
-        self.zs: list[np.ndarray] = []         # every iterate (candidates, keep_iterates)
+        self.zs: list[np.ndarray] = []         # every iterate, only with keep_all_iterates (tests)
         self.pvs: list[np.ndarray] = []        # the parameter of each attempt
         self.best: list[tuple] = []            # min-heap of (-objective, iteration, z): the lowest
         # the cost parts evaluated in place (numpy buffers, no DM per iteration);
@@ -178,7 +183,8 @@ class Recorder(ca.Callback):
         # ||Y^-1 + W|| >= ||W'|| = 1: the largest one is a relative gap
         kgap = float(_MAX(np.abs(kal), initial=0.0))
         self.rows.append((it, min_margin, viol, dt, kgap, *parts))
-        self.zs.append(zv)
+        if self.keep_all_iterates:
+            self.zs.append(zv)
         # candidates for the fallback: iterates feasible for the NLP
         feasible = viol <= 1e-6 and np.isfinite(cost)     # candidates; the exact check decides
         if feasible and cost < self.best_cost * (1 - 1e-7):
