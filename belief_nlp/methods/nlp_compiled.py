@@ -148,8 +148,8 @@ def start(disk: DiskCache, name: str) -> bool:
     """Start the background build of entry ``name``'s library unless it exists,
     another process is building it, a build of it failed in the last day, or
     there is no C compiler; True when started. The caller goes on at once."""
-    if compiler() is None or _library(disk, name).exists():
-        return False
+    if compiler() is None or not sys.executable or _library(disk, name).exists():
+        return False                     # (no sys.executable: an embedded interpreter cannot start one)
     lock, failed = disk.dir / f".{name}.compiling", _failed(disk.dir, name)
     try:
         if failed.exists() and time.time() - failed.stat().st_mtime < RETRY_AFTER_S:
