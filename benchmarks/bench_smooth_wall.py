@@ -29,6 +29,13 @@ pairs the cases (cost ratio new / old per case, wall ratios). Records go to
 benchmarks/results/smooth_wall.json with the load averages:
 
     PYTHONPATH=$PWD python benchmarks/bench_smooth_wall.py --baseline /tmp/old98
+
+``--compiled`` pairs the current code without a disk cache ("before") with
+the current code on a warm disk cache whose derivative functions were
+compiled (``BELIEF_NLP_CACHE_COMPILE=1``; the builds are waited for before
+any timing):
+
+    PYTHONPATH=$PWD python benchmarks/bench_smooth_wall.py --compiled --rounds 2 --label compiled
 """
 
 from __future__ import annotations
@@ -139,12 +146,33 @@ def worker(baseline: str | None, seeds: int, seeds40: int) -> dict:
 
 
 # ---------------------------------------------------------------- driver
-def _run_worker(baseline: Path | None, args) -> dict:
+def _run_worker(baseline: Path | None, args, env: dict | None = None) -> dict:
     cmd = [sys.executable, __file__, "--worker", "--seeds", str(args.seeds), "--seeds40", str(args.seeds40)]
     if baseline is not None:
         cmd += ["--baseline", str(baseline)]
-    out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=os.environ.copy())
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env or _plain_env())
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _plain_env() -> dict:
+    """The environment without a disk cache (each version builds its own solvers)."""
+    return {k: v for k, v in os.environ.items() if k not in ("BELIEF_NLP_CACHE_DIR", "BELIEF_NLP_CACHE_COMPILE")}
+
+
+def _compiled_env(args) -> dict:
+    """A disk-cache folder with the derivative functions of every graph the
+    worker builds compiled: one untimed worker fills it and starts the
+    background builds, which are waited for."""
+    folder = Path(tempfile.mkdtemp(prefix="bench_smooth_wall_compiled_"))
+    env = {**_plain_env(), "BELIEF_NLP_CACHE_DIR": str(folder), "BELIEF_NLP_CACHE_COMPILE": "1"}
+    _run_worker(None, args, env)
+    t0 = time.monotonic()
+    while list(folder.glob(".*.compiling")) or len(list(folder.glob("*.cso.pkl"))) < len(list(folder.glob("*.nlp.pkl"))):
+        if time.monotonic() - t0 > 3600:
+            raise SystemExit("the background compilation did not finish in an hour")
+        time.sleep(2)
+    print(f"compiled {len(list(folder.glob('*.lib.so')))} libraries in {time.monotonic() - t0:.0f} s", flush=True)
+    return env
 
 
 def _median(xs) -> float | None:
@@ -204,26 +232,33 @@ def main(argv=None) -> int:
     ap.add_argument("--baseline", type=Path, default=None, help="folder holding an older belief_nlp package")
     ap.add_argument("--label", default="current", help="key of this run in the JSON file")
     ap.add_argument("--out", type=Path, default=RESULTS / "smooth_wall.json")
+    ap.add_argument("--compiled", action="store_true",
+                    help="pair the current code without a disk cache ('before') with the current code on a warm "
+                         "disk cache whose derivative functions are compiled ('after'); no --baseline")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.compiled and args.baseline is not None:
+        ap.error("--compiled compares the current code with itself: no --baseline")
     if args.worker:
         print(json.dumps(worker(None if args.baseline is None else str(args.baseline), args.seeds, args.seeds40)))
         return 0
     load0 = os.getloadavg()
     runs: dict[str, list[dict]] = {"after": []}
-    if args.baseline is not None:
+    if args.baseline is not None or args.compiled:
         runs["before"] = []
+    envs = {"before": None, "after": _compiled_env(args) if args.compiled else None}
     for i in range(args.rounds):
         order = ["before", "after"] if i % 2 == 0 else ["after", "before"]
         for which in order:
             if which in runs:
-                runs[which].append(_run_worker(args.baseline if which == "before" else None, args))
+                runs[which].append(_run_worker(args.baseline if which == "before" else None, args, envs[which]))
     doc = json.loads(args.out.read_text()) if args.out.exists() else {}
     entry = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "load_start": load0,
                          "load_end": os.getloadavg()},
              "settings": {"scenario": SCENARIO, "nodes": 500, "alphas": ALPHAS, "seeds": args.seeds,
                           "seeds_K40": args.seeds40, "rounds": args.rounds,
-                          "baseline": None if args.baseline is None else str(args.baseline)},
+                          "baseline": None if args.baseline is None else str(args.baseline),
+                          "compiled": args.compiled},
              "summary": {k: summarise(v) for k, v in runs.items()}, "runs": runs}
     if "before" in runs:
         entry["paired"] = paired(runs["before"], runs["after"])
