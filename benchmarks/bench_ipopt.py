@@ -33,9 +33,10 @@ Four studies:
   (FLOOR_VARIANTS) at K = 80 on paper-multi seeds 0..2 first, then the
   polish study's cases at K = 20 and 40; ``--auto`` adds auto's final cost;
   writes benchmarks/results/ipopt_floor.json. ``--study mu``: the same
-  cases for MU_VARIANTS (ipopt_mu.json).
+  cases for MU_VARIANTS (ipopt_mu.json); ``--study scale``: for
+  SCALE_VARIANTS, the means scaled in the log-Cholesky stage (ipopt_scale.json).
 
-    python benchmarks/bench_ipopt.py [--study ablation|k|inertia|polish|floor|mu] [--seeds 5] [--K 20] [--out FILE]
+    python benchmarks/bench_ipopt.py [--study ablation|k|inertia|polish|floor|mu|scale] [--seeds 5] [--K 20] [--out FILE]
 """
 
 from __future__ import annotations
@@ -112,6 +113,14 @@ MU_VARIANTS = {
     "mu_min 1e-6": dict(floor=1e-2, solver_options={"mu_min": 1e-6}),
 }
 
+#: the means scaled in the log-Cholesky stage (IPOPT solves for x / s): its
+#: inertia correction delta_w I then damps the path's smooth modes s^2 times
+#: less (docs/numerics.md, "K = 80: continuation and sensing pattern")
+SCALE_VARIANTS = {
+    "defaults": dict(),
+    "scale_means 100": dict(scale_means=100.0),
+}
+
 _ROW = re.compile(r"^\s*(\d+)(r?)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+?)([a-zA-Z]?)\s+(\d+)\s*$")
 
 
@@ -166,7 +175,7 @@ def _smooth(sc, start, alpha: float, **kw) -> dict:
     return {"status": r.status, "cost": r.cost, "iterations": int(r.stats.get("iter_count", 0)),
             "stages": [[a["formulation"], a["return_status"], a["iter_count"]] for a in att],
             "restoration": int(sum(a["restoration"] or 0 for a in att)),
-            "cpu_s": float(sum(a["cpu_time"] for a in att)),
+            "cpu_s": float(sum(a["cpu_time"] for a in att)), "build_s": float(r.stats.get("build_time", 0.0)),
             "verified": bool(r.path is not None and bn.verify(sc, r.path).safe),
             "polish": r.stats.get("polish_status", ""), "log": log_summary(_new_log_text(before)),
             "loadavg": load, "path": r.path}
@@ -301,8 +310,10 @@ def variant_study(args, variants: dict) -> dict:
     return out
 
 
-def _auto(sc, start, alpha: float, floor: float) -> dict:
-    r = bn.smooth(sc, start, method="auto", alpha=alpha, ipopt_options={"floor": floor})
+def _auto(sc, start, alpha: float, kw: dict) -> dict:
+    """auto with the variant's method options for its IPOPT stage (its solver options as the run's)."""
+    opts = {k: v for k, v in kw.items() if k != "solver_options"}
+    r = bn.smooth(sc, start, method="auto", alpha=alpha, ipopt_options=opts, solver_options=kw.get("solver_options"))
     return {"status": r.status, "cost": r.cost, "method": r.method, "iterations": int(r.stats.get("iter_count", 0)),
             "cpu_s": float(r.stats.get("cpu_time", 0.0)),
             "verified": bool(r.path is not None and bn.verify(sc, r.path).safe)}
@@ -316,7 +327,7 @@ def floor_study(args, variants: dict | None = None) -> dict:
     (K, variant), so a partial run is kept."""
     from belief_nlp.families import generate
 
-    path = args.out or HERE / "ipopt_floor.json"
+    path = args.out or HERE / f"ipopt_{args.study}.json"
     maps = [("paper-multi", s, bn.load_scenario("paper-multi")) for s in range(max(args.seeds, args.tail_seeds))]
     maps += [(f"random-polygons@{m}", m, generate("random-polygons", m)) for m in range(args.maps)]
     plans = {}
@@ -347,7 +358,7 @@ def floor_study(args, variants: dict | None = None) -> dict:
                     row = {"map": name, "seed": seed, "alpha": alpha, "K": K,
                            "start_information": float(w.path.information), **rec}
                     if args.auto:
-                        row["auto"] = _auto(sc, w, alpha, kw["floor"])
+                        row["auto"] = _auto(sc, w, alpha, kw)
                     rows.append(row)
                     print(f"  {vname}, K = {K}, {name} {seed}, alpha {alpha}: {rec['stages']}, restoration "
                           f"{rec['restoration']}, {rec['cpu_s']:.2f} s CPU, cost {rec['cost']:.5f}"
@@ -419,7 +430,8 @@ def _json(o):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--study", choices=("ablation", "k", "inertia", "polish", "floor", "mu"), default="ablation")
+    ap.add_argument("--study", choices=("ablation", "k", "inertia", "polish", "floor", "mu", "scale"),
+                    default="ablation")
     ap.add_argument("--maps", type=int, default=5, help="inertia study: random-polygons maps 0..n-1")
     ap.add_argument("--seeds", type=int, default=None, help="seeds 0..n-1 (ablation: 5, k: 3)")
     ap.add_argument("--K", type=int, nargs="*", default=None, help="ablation: 20; k: 20 40")
@@ -435,9 +447,9 @@ def main() -> None:
     if args.study == "ablation":
         args.seeds, args.K = args.seeds or 5, args.K or [20]
         out, name = ablation(args), "ipopt_ablation.json"
-    elif args.study in ("floor", "mu"):
+    elif args.study in ("floor", "mu", "scale"):
         args.seeds, args.K = 6 if args.seeds is None else args.seeds, [20, 40] if args.K is None else args.K
-        out = floor_study(args, MU_VARIANTS if args.study == "mu" else None)
+        out = floor_study(args, {"mu": MU_VARIANTS, "scale": SCALE_VARIANTS}.get(args.study))
         name = f"ipopt_{args.study}.json"
     elif args.study in ("inertia", "polish"):
         args.seeds, args.K = args.seeds or 10, args.K or [20, 40]

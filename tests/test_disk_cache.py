@@ -206,6 +206,20 @@ def test_the_cli_shows_and_clears_a_cache_folder(small, fresh, tmp_path, capsys)
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
 
 
+
+def test_the_scaled_stage_loads_its_derivatives_from_disk(small, fresh, tmp_path):
+    """method "ipopt" with scale_means: the scaled stage's derivative functions
+    are stored under the scaled graph's hash and a fresh process loads them."""
+    sc, path = small
+    set_disk_cache(tmp_path / "cache")
+    first = bn.smooth(sc, path, method="ipopt", alpha=0.3, scale_means=100.0)
+    _forget()
+    second = bn.smooth(sc, path, method="ipopt", alpha=0.3, scale_means=100.0)
+    assert first.stats["build"] == "built (scaled means)"
+    assert second.stats["build"] == "built (scaled means, derivatives from disk)"
+    assert second.cost == first.cost and second.nit == first.nit and second.safe
+
+
 # -- compiled derivative functions (methods/nlp_compiled.py) -------------------------------------------
 
 needs_cc = pytest.mark.skipif(nlp_compiled.compiler() is None, reason="no C compiler on this machine")

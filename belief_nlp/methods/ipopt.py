@@ -15,7 +15,7 @@ import tempfile
 from typing import Any
 
 from ..smoother.context import Outcome, SmoothingProblem
-from ..smoother.registry import Method, register
+from ..smoother.registry import Method, Option, register
 from .nlp_engine import NLPBackend, clear_cache, nlp_options, run_nlp
 
 __all__ = ["run", "DEFAULT_IPOPT_OPTIONS", "map_status", "clear_cache", "IPOPT"]
@@ -39,6 +39,10 @@ POLISH_IPOPT_OPTIONS: dict[str, Any] = {"mu_strategy": "monotone", "mu_init": 1e
                                         "warm_start_init_point": "yes", "warm_start_bound_push": 1e-9,
                                         "warm_start_bound_frac": 1e-9, "warm_start_slack_bound_push": 1e-9,
                                         "warm_start_slack_bound_frac": 1e-9, "warm_start_mult_bound_push": 1e-9}
+
+#: the means' scale of the "logchol" stage (nlp_scaled.py; docs/numerics.md,
+#: "K = 80: continuation and sensing pattern (session 10)")
+SCALE_MEANS = 1.0
 
 _CONVERGED = {"Solve_Succeeded", "Solved_To_Acceptable_Level"}
 _MAX_ITER = {"Maximum_Iterations_Exceeded"}
@@ -115,5 +119,10 @@ METHOD = register(Method(
     description="IPOPT on the exact NLP (S = L L^T, Q = M M^T, Kalman equality), exact Hessian; "
                 "floored log-Cholesky stage, then an exact-Cholesky polish",
     iteration="one IPOPT iteration, log-Cholesky stage or polish",
-    options=nlp_options("IPOPT"),
+    options={**nlp_options("IPOPT"),
+             "scale_means": Option(SCALE_MEANS, "the means' scale in the 'logchol' stage: IPOPT solves for y = x / "
+                                                "scale_means (1: unscaled); a larger scale keeps IPOPT's inertia "
+                                                "correction from damping the path's smooth modes",
+                                   lambda v: None if isinstance(v, (int, float)) and not isinstance(v, bool)
+                                   and 0 < v < float("inf") else "must be a finite number > 0")},
 ))

@@ -52,6 +52,7 @@ from ..smoother.result import STATUSES, IterationRecord
 from .nlp_backend import NLPBackend
 from .nlp_build import _CACHE, _GRAPHS, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
 from .nlp_recorder import Recorder
+from .nlp_scaled import scaled_solver_of
 
 __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
 
@@ -130,18 +131,20 @@ _STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_Wall
 def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, *, formulation: str, opts: dict,
                  margin: float, regularisation: float, floor: float, candidates: int, cache: bool, start: Layout,
                  max_iter: int, restarts: int, stall: int, offset: int, bar: Any,
-                 bounds: Callable | None = None, duals: tuple | None = None) -> _Stage:
+                 bounds: Callable | None = None, duals: tuple | None = None, scale: float = 1.0) -> _Stage:
     """The solver on one formulation from ``start``: attempts with restarts
     from the best exactly safe point (module doc), at most ``max_iter``
     iterations. ``bounds(nlp, point)`` -> (z0, lbz, ubz) replaces the NLP's
     own start and bounds; ``duals`` (lam_x, lam_g) are the first attempt's
-    initial multipliers (a restart starts without them)."""
+    initial multipliers (a restart starts without them); ``scale`` != 1: the
+    NLP with its means scaled (:mod:`.nlp_scaled`; the stage's ``duals`` are
+    then the unscaled NLP's)."""
     if not backend.calls_back:
         # fatrop's limit m allows m + 1 iterations by its own count (measured)
         opts, restarts = {**opts, backend.limit_key: max(int(max_iter) - 1, 0)}, 0
     t_build = time.perf_counter()
-    nlp, solver, recorder, stage.build = solver_of(problem, backend, opts, formulation, margin, regularisation, floor,
-                                                   max(int(candidates), 0), cache)
+    args = (problem, backend, opts, formulation, margin, regularisation, floor, max(int(candidates), 0), cache)
+    nlp, solver, recorder, stage.build = solver_of(*args) if scale == 1 else scaled_solver_of(*args, scale)
     stage.build_time = time.perf_counter() - t_build
     stage.limit = int(max_iter)
     recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0)
@@ -166,7 +169,8 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
                 sol = solver(x0=x0, p=pv, lbx=lbx, ubx=ubx, lbg=nlp.lbg, ubg=nlp.ubg, **warm)
             z_end = np.asarray(sol["x"]).ravel()
             if backend.warm_duals:
-                stage.duals = (np.asarray(sol["lam_x"]).ravel(), np.asarray(sol["lam_g"]).ravel())
+                stage.duals = (np.asarray(sol["lam_x"]).ravel() / nlp.info.get("variable_scale", 1.0),
+                               np.asarray(sol["lam_g"]).ravel())
             if not backend.calls_back:
                 recorder.solved(z_end, np.asarray(sol["g"]).ravel(), float(sol["f"]), solver.stats())
         except RuntimeError as exc:   # CasADi raises on some solver exceptions
@@ -204,8 +208,9 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
 
 def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str = "logchol", floor: float = 1e-2,
             polish: int = 50, regularisation: float = 1e-4, margin: float = DEFAULT_POLICY.nlp, restarts: int = 1,
-            stall: int = 300, candidates: int = 5, cache: bool = True) -> Outcome:
-    """``backend``'s solver from the problem's start (module doc)."""
+            stall: int = 300, candidates: int = 5, cache: bool = True, scale_means: float = 1.0) -> Outcome:
+    """``backend``'s solver from the problem's start (module doc); ``scale_means``
+    != 1 solves the first stage with the means scaled (:mod:`.nlp_scaled`)."""
     if problem.out_of_time():                      # the warm start used the budget up
         return Outcome("time_limit", f"{STATUSES['time_limit']} (before {backend.name} started)", None,
                        backend.name)
@@ -221,7 +226,8 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     common = dict(margin=margin, regularisation=regularisation, candidates=candidates, cache=cache, bar=bar,
                   stall=stall)
     first = _solve_stage(problem, backend, _Stage(), formulation=formulation, floor=floor, opts=opts,
-                         start=problem.start, max_iter=max_iter, restarts=restarts, offset=0, **common)
+                         start=problem.start, max_iter=max_iter, restarts=restarts, offset=0, scale=scale_means,
+                         **common)
     stages = [first]
     if formulation == "logchol" and polish and first.answer is not None and first.used < max_iter \
             and not problem.out_of_time() and not problem.stop_requested:
