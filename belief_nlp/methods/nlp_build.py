@@ -18,6 +18,7 @@ from ..smoother.context import SmoothingProblem
 from . import nlp_compiled
 from .nlp_backend import NLPBackend
 from .nlp_recorder import Recorder
+from .nlp_scaled import scaled
 
 __all__ = ["clear_cache", "solver_of"]
 
@@ -65,25 +66,36 @@ def _nlp(problem: SmoothingProblem, formulation: str, margin: float, regularisat
 
 
 def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulation: str, margin: float,
-              regularisation: float, floor: float, candidates: int, cache: bool) -> tuple[NLPProblem, Any, Recorder, str]:
-    """NLP, nlpsol instance and recorder, from the cache when the model and options match."""
+              regularisation: float, floor: float, candidates: int, cache: bool,
+              scale: float = 1.0) -> tuple[NLPProblem, Any, Recorder, str]:
+    """NLP, nlpsol instance and recorder, from the cache when the model and
+    options match; ``scale`` != 1: the NLP with its means scaled
+    (:func:`.nlp_scaled.scaled`, option ``scale_means`` of method "ipopt")."""
     # the floor shapes only the "logchol" NLP: it stays out of the other
     # formulations' keys (no second build of an identical NLP); alpha is the
     # NLP's parameter, not part of it: one solver serves every alpha
     floor_key = floor if formulation == "logchol" else None
+    scale_key = "" if scale == 1 else f":scale_means={float(scale)!r}"
     key = problem_key(problem.model.data, margin,
-                      f"{backend.plugin}:{formulation}:{regularisation}:{floor_key}:{sorted(opts.items())!r}")
+                      f"{backend.plugin}:{formulation}:{regularisation}:{floor_key}{scale_key}:{sorted(opts.items())!r}")
     entry = _CACHE.get(key) if cache else None
     if entry is not None:
         return (*entry, "memory")
     view, shared = _nlp(problem, formulation, margin, regularisation, floor, cache)
     nlp = backend.form(view)
-    # derivatives built for the graph by an earlier solver of this plug-in
-    # (the other stage's, or another process's through the disk cache) are
-    # handed over instead of derived again
-    given = shared.get(backend.plugin, {}) if nlp is view else {}
+    if scale != 1:
+        if nlp is not view:
+            raise ValidationError("scale_means", f"applies to IPOPT's NLP, not to {backend.name}'s stage-ordered form")
+        nlp = scaled(view, scale)
+    # derivatives of this NLP's own graph (the plain NLP's, or its scaled
+    # form's) built by an earlier solver of this plug-in (the other stage's,
+    # or another process's through the disk cache) are handed over instead
+    # of derived again
+    own = nlp is view or scale != 1
+    slot = backend.plugin + scale_key
+    given = shared.get(slot, {}) if own else {}
     source = "built (derivatives shared)"
-    disk = disk_cache() if cache and nlp is view and backend.shared_functions and not given else None
+    disk = disk_cache() if cache and own and backend.shared_functions and not given else None
     if disk is not None:
         disk_name = _derivatives_key(nlp, backend)
         compiled = compile_enabled()
@@ -98,21 +110,21 @@ def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formul
                     nlp_compiled.start(disk, disk_name)
                 disk = None
         if given:
-            shared[backend.plugin] = given
+            shared[slot] = given
     recorder = Recorder(nlp, keep=candidates, bar=None, stall=0)
     recorder.log_path = backend.log_file()
     try:
-        solver = backend.nlpsol(f"belief_nlp_{backend.plugin}", {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
+        solver = backend.nlpsol(f"belief_nlp_{backend.plugin}{'_scaled' if scale != 1 else ''}", {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
                                 {**backend.nlpsol_options(opts, recorder.log_path), **backend.structure_options(nlp),
                                  **given, "print_time": False, "iteration_callback": recorder,
                                  "error_on_fail": False, "show_eval_warnings": False})
     except RuntimeError as exc:  # bad option names or values
         raise ValidationError("solver_options",
                               f"{backend.name} refused them: {str(exc).splitlines()[-1][:200]}") from None
-    if nlp is view and backend.shared_functions and not given:
-        shared[backend.plugin] = _derivatives(solver, backend.shared_functions)
-        if disk is not None and _complete(shared[backend.plugin], backend) \
-                and disk.save(disk_name, shared[backend.plugin], kind="nlp") is not None and compile_enabled():
+    if own and backend.shared_functions and not given:
+        shared[slot] = _derivatives(solver, backend.shared_functions)
+        if disk is not None and _complete(shared[slot], backend) \
+                and disk.save(disk_name, shared[slot], kind="nlp") is not None and compile_enabled():
             nlp_compiled.start(disk, disk_name)
     if cache:
         _CACHE.put(key, (nlp, solver, recorder))

@@ -52,7 +52,6 @@ from ..smoother.result import STATUSES, IterationRecord
 from .nlp_backend import NLPBackend
 from .nlp_build import _CACHE, _GRAPHS, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
 from .nlp_recorder import Recorder
-from .nlp_scaled import scaled_solver_of
 
 __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
 
@@ -143,8 +142,8 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         # fatrop's limit m allows m + 1 iterations by its own count (measured)
         opts, restarts = {**opts, backend.limit_key: max(int(max_iter) - 1, 0)}, 0
     t_build = time.perf_counter()
-    args = (problem, backend, opts, formulation, margin, regularisation, floor, max(int(candidates), 0), cache)
-    nlp, solver, recorder, stage.build = solver_of(*args) if scale == 1 else scaled_solver_of(*args, scale)
+    nlp, solver, recorder, stage.build = solver_of(problem, backend, opts, formulation, margin, regularisation, floor,
+                                                   max(int(candidates), 0), cache, scale)
     stage.build_time = time.perf_counter() - t_build
     stage.limit = int(max_iter)
     recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0)

@@ -13,30 +13,22 @@ and the same shift damps it ``scale``^2 times less; the optimum, the other
 variables and the constraints are unchanged (the same points in x).
 
 The scaled NLP is the graph's own f and g with z replaced by D y (one
-substitution), its bounds, packing and cost parts in y; the solver derives
-its derivatives on it (no sharing with the unscaled graph's, which the
-polish uses); with the disk cache on they are kept there under the scaled
-graph's hash. Its solvers are kept in the engine's memory cache under their
-own key.
+substitution), its bounds, packing and cost parts in y. Its solver is built
+by :func:`.nlp_build.solver_of` as any other (its own memory-cache key; its
+derivative functions shared, and kept in the disk cache under the scaled
+graph's hash, compiled on request, as the unscaled graph's).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import casadi as ca
 import numpy as np
 
-from ..errors import ValidationError
-from ..model.cache import disk_cache, problem_key
 from ..model.nlp_form import NLPProblem
-from ..smoother.context import SmoothingProblem
-from .nlp_backend import NLPBackend
-from .nlp_build import _CACHE, _complete, _derivatives, _derivatives_key, _nlp
-from .nlp_recorder import Recorder
 
-__all__ = ["scaled", "scaled_solver_of"]
+__all__ = ["scaled"]
 
 
 def scaled(nlp: NLPProblem, scale: float) -> NLPProblem:
@@ -64,43 +56,3 @@ def scaled(nlp: NLPProblem, scale: float) -> NLPProblem:
 
     out.without_sensing = without_sensing      # type: ignore[method-assign]
     return out
-
-
-def scaled_solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulation: str, margin: float,
-                     regularisation: float, floor: float, candidates: int, cache: bool,
-                     scale: float) -> tuple[NLPProblem, Any, Recorder, str]:
-    """As :func:`.nlp_build.solver_of`, on the NLP scaled by :func:`scaled`."""
-    floor_key = floor if formulation == "logchol" else None
-    key = problem_key(problem.model.data, margin, f"{backend.plugin}:{formulation}:{regularisation}:{floor_key}:"
-                                                  f"scale_means={float(scale)!r}:{sorted(opts.items())!r}")
-    entry = _CACHE.get(key) if cache else None
-    if entry is not None:
-        return (*entry, "memory")
-    view, _ = _nlp(problem, formulation, margin, regularisation, floor, cache)
-    nlp = scaled(view, scale)
-    # IPOPT's derivative functions of the scaled graph from the disk cache
-    # (when on), under the hash of that graph as for the unscaled one
-    disk = disk_cache() if cache and backend.shared_functions else None
-    given, name = {}, None
-    if disk is not None:
-        name = _derivatives_key(nlp, backend)
-        loaded = disk.load(name, kind="nlp")
-        if _complete(loaded, backend):
-            given, disk = loaded, None
-    recorder = Recorder(nlp, keep=candidates, bar=None, stall=0)
-    recorder.log_path = backend.log_file()
-    try:
-        solver = backend.nlpsol(f"belief_nlp_{backend.plugin}_scaled", {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
-                                {**backend.nlpsol_options(opts, recorder.log_path), **backend.structure_options(nlp),
-                                 **given, "print_time": False, "iteration_callback": recorder, "error_on_fail": False,
-                                 "show_eval_warnings": False})
-    except RuntimeError as exc:  # bad option names or values
-        raise ValidationError("solver_options",
-                              f"{backend.name} refused them: {str(exc).splitlines()[-1][:200]}") from None
-    if disk is not None:
-        functions = _derivatives(solver, backend.shared_functions)
-        if _complete(functions, backend):
-            disk.save(name, functions, kind="nlp")
-    if cache:
-        _CACHE.put(key, (nlp, solver, recorder))
-    return nlp, solver, recorder, "built (scaled means" + (", derivatives from disk)" if given else ")")
