@@ -343,3 +343,25 @@ def test_a_failing_compiler_is_recorded_and_not_run_again_by_every_process(tiny,
     assert not lock.exists() and (tmp_path / f".{name}.failed").exists()
     assert nlp_compiled.start(DiskCache(tmp_path), name) is False      # not again for a day
     assert not lock.exists() and not list(tmp_path.glob("*.so"))
+
+
+@needs_cc
+def test_the_cli_compiles_every_entry_without_a_library(tiny, fresh, tmp_path, capsys):
+    from belief_nlp.cli import EXIT_BAD_INPUT, EXIT_OK, main
+
+    sc, path = tiny
+    set_disk_cache(tmp_path)                                      # serialised entries only
+    first = bn.smooth(sc, path, alpha=0.1, method="ipopt")
+    n = len(list(tmp_path.glob("*.nlp.pkl")))
+    assert n >= 1 and not list(tmp_path.glob("*.so"))
+    assert main(["cache", "--dir", str(tmp_path), "--compile", "--quiet"]) == EXIT_OK
+    assert f"compiled {n} entries" in capsys.readouterr().out
+    assert len(list(tmp_path.glob("*.lib.so"))) == n
+    assert main(["cache", "--dir", str(tmp_path), "--compile", "--quiet"]) == EXIT_OK
+    assert "compiled 0 entries" in capsys.readouterr().out
+    set_disk_cache(tmp_path, compile=True)
+    _forget()
+    again = bn.smooth(sc, path, alpha=0.1, method="ipopt")
+    assert again.stats["build"] == "built (derivatives compiled)" and again.cost == first.cost
+    assert main(["cache", "--dir", str(tmp_path), "--compile", "--clear"]) == EXIT_BAD_INPUT
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1

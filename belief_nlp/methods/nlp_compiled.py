@@ -41,7 +41,7 @@ import numpy as np
 
 from ..model.cache import ENV_COMPILE, DiskCache, _private
 
-__all__ = ["compiler", "load", "compile_entry", "start"]
+__all__ = ["compiler", "load", "compile_entry", "compile_all", "start"]
 
 log = logging.getLogger("belief_nlp.cache")
 
@@ -142,6 +142,33 @@ def compile_entry(directory: str | Path, name: str, cc: str | None = None) -> Pa
             "points": points, "values": values, "cc": cc, "cflags": CFLAGS}
     disk.save(name, meta, kind="cso")
     return lib
+
+
+def compile_all(disk: DiskCache, progress: bool = True) -> tuple[int, list[str]]:
+    """Build, in this process, the library of every serialised derivative
+    entry in ``disk`` that has none (``belief-nlp cache --compile``: e.g. when
+    preparing a deployment image); returns (built, names that failed)."""
+    from .._progress import progress_bar
+
+    names = sorted(p.name.split(".")[0] for p in disk.entries()
+                   if p.name.endswith(".nlp.pkl") and not _library(disk, p.name.split(".")[0]).exists())
+    built, failed = 0, []
+    bar = progress_bar(len(names), "compiling", unit="entry", disable=not progress or not names)
+    try:
+        for name in names:
+            try:
+                lib = compile_entry(disk.dir, name)
+            except Exception as exc:     # one bad entry does not stop the others
+                log.warning("could not compile cache entry %s: %s", name, exc)
+                lib = None
+            if lib is None:
+                failed.append(name)
+            else:
+                built += 1
+            bar.update(1)
+    finally:
+        bar.close()
+    return built, failed
 
 
 def start(disk: DiskCache, name: str) -> bool:
