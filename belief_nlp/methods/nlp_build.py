@@ -113,8 +113,9 @@ def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formul
             shared[slot] = given
     recorder = Recorder(nlp, keep=candidates, bar=None, stall=0)
     recorder.log_path = backend.log_file()
+    name = f"belief_nlp_{backend.plugin}" + ("_scaled" if scale != 1 else "")
     try:
-        solver = backend.nlpsol(f"belief_nlp_{backend.plugin}{'_scaled' if scale != 1 else ''}", {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
+        solver = backend.nlpsol(name, {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
                                 {**backend.nlpsol_options(opts, recorder.log_path), **backend.structure_options(nlp),
                                  **given, "print_time": False, "iteration_callback": recorder,
                                  "error_on_fail": False, "show_eval_warnings": False})
