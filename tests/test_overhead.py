@@ -62,6 +62,14 @@ def recorder():
     return nlp, zv, pv, gv
 
 
+def _started(nlp, pv, keep: int, keep_all: bool = True) -> Recorder:
+    """A recorder at the start of an attempt (parameter pv, budget 10)."""
+    rec = Recorder(nlp, keep=keep, bar=None)
+    rec.keep_all_iterates = keep_all
+    rec.begin(pv, 10, None)
+    return rec
+
+
 def test_recorder_buffers_and_dms_record_alike(recorder):
     """eval_buffer (what CasADi's nlpsol calls: the solver's buffers) and eval
     (DMs: backends outside CasADi) give the same rows, parts and candidates,
@@ -70,9 +78,7 @@ def test_recorder_buffers_and_dms_record_alike(recorder):
     nlp, zv, pv, gv = recorder
     rows = []
     for via_buffer in (True, False):
-        rec = Recorder(nlp, keep=3, bar=None)
-        rec.keep_all_iterates = True
-        rec.begin(pv, 10, None)
+        rec = _started(nlp, pv, keep=3)
         for i in range(3):
             x = zv * (1 + 1e-3 * i)
             if via_buffer:            # a Function call on the callback goes through eval_buffer
@@ -84,12 +90,11 @@ def test_recorder_buffers_and_dms_record_alike(recorder):
         ctrl, info, _ = nlp.parts(rec.zs[-1], pv)
         assert rec.rows[-1][5:] == (float(ctrl), float(info))
     assert rows[0] == rows[1] and len(rows[0][0]) == 2           # iteration 0 (the start) is not recorded
-    rec = Recorder(nlp, keep=3, bar=None)
-    rec.begin(pv, 10, None)
+    rec = _started(nlp, pv, keep=3, keep_all=False)
     buf = [memoryview(np.ascontiguousarray(zv)), None, None, None, None, None]
     out = np.zeros(1)
     assert rec.eval_buffer(buf, [memoryview(out)]) == 0 and rec.eval_buffer(buf, [memoryview(out)]) == 0
-    g_x = np.asarray(ca.Function("g", [nlp.z, nlp.p], [nlp.g])(zv, pv), float).ravel()
+    g_x = np.asarray(nlp.fg(zv, pv)[1], float).ravel()
     assert rec.rows[-1][2] == float(max(np.max(nlp.lbg - g_x, initial=0.0), np.max(g_x - nlp.ubg, initial=0.0)))
     assert rec.rows[-1][1] == float(min(np.min(g_x[:nlp.n_collision]),
                                         np.min(g_x[nlp.n_collision:nlp.n_collision + nlp.info["n_target"]])))
@@ -103,9 +108,7 @@ def test_a_recorder_keeps_only_its_best_candidates_by_default(recorder):
     gv = np.clip(gv, nlp.lbg, nlp.ubg)          # rows within their bounds: every iterate a candidate
     best = []
     for keep_all in (False, True):
-        rec = Recorder(nlp, keep=2, bar=None)
-        rec.keep_all_iterates = keep_all
-        rec.begin(pv, 10, None)
+        rec = _started(nlp, pv, keep=2, keep_all=keep_all)
         for i in range(6):
             rec(zv * (1 + 1e-3 * i), 1.0 - 0.01 * i, gv, [], [], [])
         assert len(rec.zs) == (5 if keep_all else 0) and len(rec.best) <= 2

@@ -140,7 +140,7 @@ def _derivatives_key(nlp: NLPProblem, backend: NLPBackend) -> str:
     h = hashlib.sha256()
     for part in (MODEL_REVISION, ca.__version__, backend.plugin, sorted(backend.shared_functions.items())):
         h.update(repr(part).encode())
-    h.update(ca.Function("nlp", [nlp.z, nlp.p], [nlp.f, nlp.g]).serialize().encode())
+    h.update(nlp.fg.serialize().encode())
     return h.hexdigest()[:40]
 
 

@@ -150,8 +150,8 @@ def compile_all(disk: DiskCache, progress: bool = True) -> tuple[int, list[str]]
     preparing a deployment image); returns (built, names that failed)."""
     from .._progress import progress_bar
 
-    names = sorted(p.name.split(".")[0] for p in disk.entries()
-                   if p.name.endswith(".nlp.pkl") and not _library(disk, p.name.split(".")[0]).exists())
+    entries = (p.name.split(".")[0] for p in disk.entries() if p.name.endswith(".nlp.pkl"))
+    names = sorted(name for name in entries if not _library(disk, name).exists())
     built, failed = 0, []
     bar = progress_bar(len(names), "compiling", unit="entry", disable=not progress or not names)
     try:

@@ -36,7 +36,6 @@ class Recorder(ca.Callback):
         self.calls = 0
         self.offset = 0
         self.pv = None
-        self._fg_fn = None                      # (z, p) -> (f, g), for solvers that pass them as NULL
         self.budget = None
         self.deadline = None
         self.stop_reason = ""
@@ -128,10 +127,8 @@ class Recorder(ca.Callback):
         return 0
 
     def _fg(self, x: np.ndarray) -> tuple[float, np.ndarray]:
-        """Objective and rows at x with the attempt's parameter (built on first use)."""
-        if self._fg_fn is None:
-            self._fg_fn = ca.Function("belief_nlp_recorder_fg", [self.nlp.z, self.nlp.p], [self.nlp.f, self.nlp.g])
-        f, g = self._fg_fn(x, self.pv)
+        """Objective and rows at x with the attempt's parameter."""
+        f, g = self.nlp.fg(x, self.pv)
         return float(f), np.asarray(g, float).ravel()
 
     def eval(self, arg):

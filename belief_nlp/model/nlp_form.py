@@ -30,6 +30,7 @@ the measured alternatives ("minors", "eliminated"): docs/numerics.md, "IPOPT".
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from itertools import combinations
 from typing import Callable
 
@@ -93,6 +94,13 @@ class NLPProblem:
     info: dict = field(default_factory=dict)
     _view: Callable[[str, float], "NLPProblem"] | None = field(default=None, repr=False)
     graph: dict | None = field(default=None, repr=False)
+
+    @cached_property
+    def fg(self) -> ca.Function:
+        """(z, p) -> (f, g): the objective and the rows as one function (built
+        on first use; the recorder's values for solvers that pass none, the
+        disk cache's hash of the graph)."""
+        return ca.Function("belief_nlp_fg", [self.z, self.p], [self.f, self.g])
 
     def variant(self, formulation: str, floor: float | None = None) -> "NLPProblem":
         """The other member of the "cholesky" / "logchol" pair on the same
