@@ -159,6 +159,9 @@ def attempt(xs, Ps, tx, tpe, tle, tcost, th, tlive, n, F, nf, n_obs, VE, T, prm,
         small, big = congruence_pair(tpe[0, i] + w * w11, tpe[1, i] + w * w12, tpe[2, i] + w * w22, q11, q21, q22)
         info = info_pair(small, big, 1e-300, metric)
         Dn = dist + weight * info
+        # (the nearest node's edge to a steered sample costs r in exact
+        # arithmetic; rounding decides whether it is a candidate, here as in
+        # the numpy attempt: a tolerance would change the search, docs/planner.md)
         if small >= LOSSLESS_MIN and Dn <= r:
             ibuf[I_CAND, nc] = i
             fbuf[F_NVIA, nc] = tcost[i] + Dn
@@ -227,11 +230,11 @@ def attempt(xs, Ps, tx, tpe, tle, tcost, th, tlive, n, F, nf, n_obs, VE, T, prm,
         if st == EXACT:
             n_exact += 1
     stats[STAT_EXACT] += n_exact
+    if parent_pos < 0 and not n_exact:
+        return ALL_COLLIDING, nc, nr, -1, False, 0
     goal = in_target(x0, x1, p11, p12, p22, T, prm[P_THR_T])
     if n_exact:
         return PARENT_EXACT, nc, nr, parent_pos, goal, 0
-    if parent_pos < 0:
-        return ALL_COLLIDING, nc, nr, -1, goal, 0
     cost_q = fbuf[F_VIA, parent_pos]
     out[10], out[11] = cost_q, fbuf[F_CINFO, parent_pos]
     r_exact = 0
