@@ -215,9 +215,17 @@ def main(argv=None) -> int:
                     help="run every case with each planner backend, alternately (paired)")
     ap.add_argument("--compile-cost", action="store_true",
                     help="first measure imports and first plan calls in fresh processes (numba cache empty / warm)")
+    ap.add_argument("--only-compile-cost", action="store_true", help="--compile-cost alone, no planner runs")
     ap.add_argument("--out", type=Path, default=RESULTS / OUT_NAME)
     args = ap.parse_args(argv)
-    compile_record = compile_cost() if args.compile_cost else None
+    compile_record = compile_cost() if args.compile_cost or args.only_compile_cost else None
+    if args.only_compile_cost:
+        data = json.loads(args.out.read_text()) if args.out.exists() else {}
+        data.setdefault("records", {})[f"{args.label}-compile"] = _finite({"machine": machine_info(),
+                                                                           "first_calls": compile_record})
+        args.out.write_text(json.dumps(data, indent=1, allow_nan=False))
+        print(f"wrote {args.out}")
+        return 0
     libs = {args.label: bn}
     kws: dict[str, dict] = {args.label: {}}
     if args.baseline is not None:

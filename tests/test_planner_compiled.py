@@ -214,6 +214,15 @@ def test_edge_costs_are_the_numpy_kernels(metric):
         assert linalg.info_pair(small, big, 1.0, code) == pytest.approx(near[i], rel=1e-12, abs=1e-300)
 
 
+def test_candidate_order_is_numpys_stable_argsort():
+    rng = np.random.default_rng(1)
+    for n in (0, 1, 2, 3, 7, 16, 33, 200):
+        for key in (rng.random(n), rng.integers(0, 4, n).astype(float)):
+            order, tmp = np.zeros(n + 2, dtype=np.int64), np.zeros(n + 2, dtype=np.int64)
+            A.stable_order(key, n, order, tmp)
+            assert np.array_equal(order[:n], np.argsort(key, kind="stable"))
+
+
 @pytest.mark.parametrize("noise", ["per_step", "per_metre"])
 @pytest.mark.parametrize("steering", ["geodesic", "linear"])
 def test_steering_is_the_numpy_steering(noise, steering):

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 from .collide import CLEAR, EXACT, decide_edge, in_target, shrink_exponent
@@ -43,6 +42,32 @@ STAT_EDGES, STAT_SCREENED, STAT_WITNESSED, STAT_REFINED, STAT_EXACT, STAT_PARENT
 P_THR, P_THR_W, P_THR_T, P_W11, P_W12, P_W22, P_WEIGHT, P_GAMMA, P_RCAP, P_LOGDET_MAX, P_EIG_FLOOR = range(11)
 I_METRIC, I_PER_METRE, I_GEODESIC, I_DEPTH = range(4)
 REL_EPS = 1e-12             # iteration._REL_EPS
+
+
+@njit(cache=True, error_model="numpy")
+def stable_order(key, n, order, tmp) -> None:
+    """``order[:n]`` = the stable ascending order of ``key[:n]`` (numpy's
+    ``argsort(kind="stable")`` for keys without NaN), by a bottom-up merge
+    sort; ``tmp`` (>= n) is scratch. (numpy's argsort in numba costs about
+    3 s of compilation.)"""
+    for i in range(n):
+        order[i] = i
+    width = 1
+    while width < n:
+        for lo in range(0, n, 2 * width):
+            mid, hi = min(lo + width, n), min(lo + 2 * width, n)
+            i, j = lo, mid
+            for k in range(lo, hi):
+                # the left run wins ties: stable
+                if j < hi and (i >= mid or key[order[j]] < key[order[i]]):
+                    tmp[k] = order[j]
+                    j += 1
+                else:
+                    tmp[k] = order[i]
+                    i += 1
+        for k in range(n):
+            order[k] = tmp[k]
+        width *= 2
 
 
 @njit(cache=True, error_model="numpy")
@@ -181,9 +206,9 @@ def attempt(xs, Ps, tx, tpe, tle, tcost, th, tlive, n, F, nf, n_obs, VE, T, prm,
         return NO_CANDIDATE, 0, 0, -1, False, 0
     stats[STAT_PARENTS] += nc
     # candidates in order of cost through them (stable, as the numpy path)
-    order = np.argsort(fbuf[F_NVIA, :nc], kind="mergesort")
+    stable_order(fbuf[F_NVIA], nc, ibuf[I_RW], ibuf[I_RSTAT])      # (rewiring rows: filled below)
     for p in range(nc):
-        o = order[p]
+        o = ibuf[I_RW, p]
         fbuf[F_VIA, p] = fbuf[F_NVIA, o]
         ibuf[I_CSTAT, p] = ibuf[I_CAND, o]        # (scratch rows: the sorted candidates, moved below)
         fbuf[F_RINFO, p] = fbuf[F_CINFO, o]
