@@ -94,7 +94,7 @@ class PlannerOptions:
     progress : show a tqdm progress bar.
     backend : how a 2-D attempt runs: ``"numpy"`` (the reference),
         ``"numba"`` (compiled, :mod:`.compiled`: the same steps and
-        collision layers, several times less CPU, docs/planner.md; needs the ``belief-nlp[fast]``
+        collision layers, about 7x less CPU on paper-multi, docs/planner.md; needs the ``belief-nlp[fast]``
         extra, 2-D scenarios and the entropy or hellinger metric) or
         ``"auto"`` (numba when installed and supported, else numpy). The two
         draw the same samples but round differently, so their trees differ
