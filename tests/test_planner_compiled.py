@@ -319,11 +319,12 @@ def test_backend_option_is_validated(monkeypatch):
         IGRRTStar(cube, backend="numba")
     with pytest.raises(ValidationError, match="backend.*wasserstein"):
         IGRRTStar(quad, backend="numba", metric="wasserstein")
-    assert IGRRTStar(cube).backend == "numpy"
-    assert IGRRTStar(quad, metric="wasserstein").backend == "numpy"
-    assert IGRRTStar(quad).backend == "numba"
-    assert IGRRTStar(quad, backend="numpy").backend == "numpy"
+    assert IGRRTStar(quad).backend == "numpy"                      # the default
+    assert IGRRTStar(cube, backend="auto").backend == "numpy"
+    assert IGRRTStar(quad, metric="wasserstein", backend="auto").backend == "numpy"
+    assert IGRRTStar(quad, backend="auto").backend == "numba"
+    assert IGRRTStar(quad.with_options(planner={"backend": "numba"})).backend == "numba"   # a scenario's table
     monkeypatch.setattr(compiled, "available", lambda: False)
     with pytest.raises(ValidationError, match=r"backend.*belief-nlp\[fast\]"):
         IGRRTStar(quad, backend="numba")
-    assert IGRRTStar(quad).backend == "numpy"
+    assert IGRRTStar(quad, backend="auto").backend == "numpy"

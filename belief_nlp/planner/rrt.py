@@ -37,6 +37,9 @@ as nodes (as the authors' loop); they count as attempts.
 
 The radius follows the authors: r_n = min(max_radius, gamma (log n / n)^(1/d))
 with n the number of live nodes plus one.
+
+Steps 1-7 run in numpy (:mod:`.iteration`, the reference) or, in 2-D with
+numba installed, compiled (:mod:`.compiled`): ``PlannerOptions.backend``.
 """
 
 from __future__ import annotations

@@ -15,8 +15,8 @@ The steps and tests are those of :meth:`..iteration.IterationMixin._iterate`
 * an edge the layers cannot decide is reported (``EXACT``), and the caller
   decides it with the exact minimiser, as the numpy checker does.
 
-Buffers: ``ibuf`` (int64, 6 x cap) and ``fbuf`` (float64, 10 x cap) rows
-(see ``_I_*``, ``_F_*``), ``out`` (float64, 16): the new node and its
+Buffers: ``ibuf`` (int64, 5 x cap) and ``fbuf`` (float64, 10 x cap) rows
+(see ``I_*``, ``F_*``), ``out`` (float64, 16): the new node and its
 numbers, ``stats`` (int64, 8): counters (``STAT_*``).
 """
 
