@@ -24,7 +24,9 @@ __all__ = ["available", "unsupported", "resolve_backend", "drop_stale_cache"]
 
 _HERE = Path(__file__).resolve().parent
 # the sources of the compiled functions (refine_scalar's layers are compiled from its Python source)
-_SOURCES = [_HERE / f for f in ("linalg.py", "collide.py", "attempt.py")] + [_HERE.parent / "refine_scalar.py"]
+# and of the constants compiled into them (metrics.LOSSLESS_RTOL, iteration._REL_EPS)
+_SOURCES = ([_HERE / f for f in ("linalg.py", "collide.py", "attempt.py")]
+            + [_HERE.parent / f for f in ("refine_scalar.py", "metrics.py", "iteration.py")])
 
 BACKENDS = ("auto", "numpy", "numba")
 

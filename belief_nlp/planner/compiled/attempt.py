@@ -26,6 +26,7 @@ import math
 
 from numba import njit
 
+from ..iteration import _REL_EPS as REL_EPS
 from .collide import CLEAR, EXACT, decide_edge, in_target, shrink_exponent
 from .linalg import LOSSLESS_MIN, chol2, congruence_pair, info_pair, inv_factor, steer
 
@@ -41,7 +42,6 @@ STAT_EDGES, STAT_SCREENED, STAT_WITNESSED, STAT_REFINED, STAT_EXACT, STAT_PARENT
 # prm (float) and iprm (int) entries
 P_THR, P_THR_W, P_THR_T, P_W11, P_W12, P_W22, P_WEIGHT, P_GAMMA, P_RCAP, P_LOGDET_MAX, P_EIG_FLOOR = range(11)
 I_METRIC, I_PER_METRE, I_GEODESIC, I_DEPTH = range(4)
-REL_EPS = 1e-12             # iteration._REL_EPS
 
 
 @njit(cache=True, error_model="numpy")

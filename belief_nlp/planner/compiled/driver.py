@@ -15,7 +15,8 @@ import time
 
 import numpy as np
 
-from ..iteration import _REL_EPS
+from ..collision import _SCALAR_DEPTH
+from ..iteration import _EIG_FLOOR_FACTOR, _REL_EPS
 from . import drop_stale_cache
 
 drop_stale_cache()          # before the compiled modules load their caches
@@ -25,7 +26,8 @@ from .collide import CLEAR, EXACT, decide_batch  # noqa: E402
 
 __all__ = ["CompiledAttempt", "hazard_arrays", "transitions_clear"]
 
-_DEPTH = 10         # sub-interval halvings (the numpy checker's Python-float layers: collision._SCALAR_DEPTH)
+# sub-interval halvings: those of the numpy checker's Python-float layers
+_DEPTH = _SCALAR_DEPTH
 
 
 def hazard_arrays(checker) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
@@ -89,7 +91,7 @@ class CompiledAttempt:
         prm[A.P_GAMMA] = planner.gamma
         prm[A.P_RCAP] = o.max_radius + o.radius_per_alpha * o.alpha
         prm[A.P_LOGDET_MAX] = planner._logdet_max
-        prm[A.P_EIG_FLOOR] = 1e-3 * o.eig_range[0]          # iteration._EIG_FLOOR_FACTOR
+        prm[A.P_EIG_FLOOR] = _EIG_FLOOR_FACTOR * o.eig_range[0]
         self.prm = prm
         self.iprm = np.array([0 if o.metric == "entropy" else 1, planner.per_metre, o.steering == "geodesic",
                               _DEPTH], dtype=np.int64)

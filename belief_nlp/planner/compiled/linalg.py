@@ -13,9 +13,11 @@ import math
 
 from numba import njit
 
+from ..metrics import LOSSLESS_RTOL
+
 # metric codes of the compiled backend
 ENTROPY, HELLINGER = 0, 1
-LOSSLESS_MIN = 1.0 + 1e-7      # metrics.LOSSLESS_RTOL
+LOSSLESS_MIN = 1.0 + LOSSLESS_RTOL
 
 
 @njit(cache=True, error_model="numpy")
