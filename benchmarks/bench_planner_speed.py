@@ -37,6 +37,16 @@ per-run CPU ratios:
 With another ``--label`` L the paired records are ``L-before-paired`` and
 ``L-after-paired`` and the comparison ``L-paired_comparison``, so that
 several paired runs (against different old versions) stay in one file.
+
+``--backends numpy numba`` runs every case with each planner backend
+(``PlannerOptions.backend``), one after the other (paired, as above): records
+``L-numpy`` and ``L-numba``, comparison ``L-backend_comparison``. With
+``--compile-cost`` the script first measures, in fresh processes, the import
+of numba and the first ``plan`` call of each backend with an empty numba
+cache (compilation) and with the cache written (record ``L-compile``):
+
+    PYTHONPATH=$PWD python benchmarks/bench_planner_speed.py --label round4 --sizes 2000 --seeds 5 \
+        --backends numpy numba --compile-cost
 """
 
 from __future__ import annotations
@@ -51,6 +61,7 @@ import argparse  # noqa: E402
 import hashlib  # noqa: E402
 import importlib  # noqa: E402
 import json  # noqa: E402
+import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -84,15 +95,51 @@ def baseline_module(folder: Path):
     return importlib.import_module("belief_nlp_baseline")
 
 
-def run_one(sc, n: int, seed: int, noise: str, lib=bn) -> dict:
+def run_one(sc, n: int, seed: int, noise: str, lib=bn, **kw) -> dict:
     load0 = os.getloadavg()
     c0, t0 = time.process_time(), time.perf_counter()
-    res = lib.plan(sc, n_nodes=n, seed=seed, noise=noise)
+    res = lib.plan(sc, n_nodes=n, seed=seed, noise=noise, **kw)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     return {"n_nodes": n, "seed": seed, "noise": noise, "success": bool(res.success), "best_cost": res.cost,
             "wall_s": wall, "cpu_s": cpu, "wall_per_node_ms": 1e3 * wall / n, "cpu_per_node_ms": 1e3 * cpu / n,
             "attempts": res.stats["attempts"], "edges_checked": res.stats["edges_checked"],
-            "fingerprint": fingerprint(res), "load_before": load0, "load_after": os.getloadavg()}
+            "fingerprint": fingerprint(res), "load_before": load0, "load_after": os.getloadavg(),
+            "backend": res.stats.get("backend", "numpy")}
+
+
+_FIRST_CALL = """
+import os, time
+c0, t0 = time.process_time(), time.perf_counter()
+import belief_nlp as bn
+c1, t1 = time.process_time(), time.perf_counter()
+if {numba!r}:
+    import numba
+c2, t2 = time.process_time(), time.perf_counter()
+sc = bn.load_scenario("paper-multi")
+res = bn.plan(sc, n_nodes=200, seed=0, backend={backend!r})
+c3, t3 = time.process_time(), time.perf_counter()
+print(c1 - c0, t1 - t0, c2 - c1, t2 - t1, c3 - c2, t3 - t2, res.timings["cpu"], os.getloadavg()[0])
+"""
+
+
+def compile_cost() -> dict:
+    """Fresh processes: the import of belief_nlp and of numba, and the first
+    ``plan`` call (N = 200) of each backend; for numba with an empty cache
+    (a new ``NUMBA_CACHE_DIR``: compilation) and again with the cache it
+    wrote. CPU and wall seconds."""
+    keys = ("import_belief_nlp_cpu_s", "import_belief_nlp_wall_s", "import_numba_cpu_s", "import_numba_wall_s",
+            "first_plan_cpu_s", "first_plan_wall_s", "plan_call_cpu_s", "load_1min")
+    out = {}
+    with tempfile.TemporaryDirectory(prefix="numba_cache_") as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        for name, backend in (("numpy", "numpy"), ("numba_empty_cache", "numba"), ("numba_cached", "numba"),
+                              ("numba_cached_again", "numba")):
+            code = _FIRST_CALL.format(numba=backend == "numba", backend=backend)
+            line = subprocess.run([sys.executable, "-c", code], env=env, check=True, capture_output=True,
+                                  text=True).stdout.split()
+            out[name] = dict(zip(keys, map(float, line)))
+            print("first call", name, json.dumps(out[name]), flush=True)
+    return out
 
 
 def _quartiles(vals) -> list[float]:
@@ -164,15 +211,33 @@ def main(argv=None) -> int:
     ap.add_argument("--noise", nargs="+", default=["per_step"], choices=["per_step", "per_metre"])
     ap.add_argument("--baseline", type=Path, default=None,
                     help="folder holding the old belief_nlp package: run old and new alternately (paired)")
+    ap.add_argument("--backends", nargs="+", default=None, choices=["numpy", "numba", "auto"],
+                    help="run every case with each planner backend, alternately (paired)")
+    ap.add_argument("--compile-cost", action="store_true",
+                    help="first measure imports and first plan calls in fresh processes (numba cache empty / warm)")
+    ap.add_argument("--only-compile-cost", action="store_true", help="--compile-cost alone, no planner runs")
     ap.add_argument("--out", type=Path, default=RESULTS / OUT_NAME)
     args = ap.parse_args(argv)
+    compile_record = compile_cost() if args.compile_cost or args.only_compile_cost else None
+    if args.only_compile_cost:
+        data = json.loads(args.out.read_text()) if args.out.exists() else {}
+        data.setdefault("records", {})[f"{args.label}-compile"] = _finite({"machine": machine_info(),
+                                                                           "first_calls": compile_record})
+        args.out.write_text(json.dumps(data, indent=1, allow_nan=False))
+        print(f"wrote {args.out}")
+        return 0
     libs = {args.label: bn}
+    kws: dict[str, dict] = {args.label: {}}
     if args.baseline is not None:
         pre = "" if args.label == "paired" else f"{args.label}-"
         libs = {f"{pre}before-paired": baseline_module(args.baseline), f"{pre}after-paired": bn}
+        kws = {name: {} for name in libs}
+    elif args.backends:
+        libs = {f"{args.label}-{b}": bn for b in args.backends}
+        kws = {f"{args.label}-{b}": {"backend": b} for b in args.backends}
     scs = {name: lib.load_scenario("paper-multi") for name, lib in libs.items()}
     for name, lib in libs.items():
-        lib.plan(scs[name], n_nodes=200, seed=0)              # warm-up: imports, first-call caches
+        lib.plan(scs[name], n_nodes=200, seed=0, **kws[name])      # warm-up: imports, first-call caches
     info = machine_info()
     info["belief_nlp_file"] = {name: lib.__file__ for name, lib in libs.items()}
     runs: dict[str, list] = {name: [] for name in libs}
@@ -182,7 +247,7 @@ def main(argv=None) -> int:
         for n in args.sizes:
             for seed in range(max(args.seeds, args.cost_seeds) if n == n_max else args.seeds):
                 for name, lib in libs.items():
-                    rec = run_one(scs[name], n, seed, noise, lib)
+                    rec = run_one(scs[name], n, seed, noise, lib, **kws[name])
                     runs[name].append(rec)
                     print(f"{name} {noise} N={n} seed={seed}: cost {rec['best_cost']:.6f}  wall {rec['wall_s']:.3f} s"
                           f"  cpu {rec['cpu_s']:.3f} s  load {rec['load_before'][0]:.2f}", flush=True)
@@ -195,7 +260,12 @@ def main(argv=None) -> int:
         data.setdefault("records", {})[name] = _finite(record)
         for row in record["summary"]:
             print(name, json.dumps(row))
+    if compile_record is not None:
+        data["records"][f"{args.label}-compile"] = _finite({"machine": info, "first_calls": compile_record})
     recs = data["records"]
+    if args.backends and len(args.backends) == 2:
+        a, b = (f"{args.label}-{x}" for x in args.backends)
+        data[f"{args.label}-backend_comparison"] = compare(recs[a], recs[b], paired=True)
     if "before" in recs and "after" in recs:
         data["comparison"] = compare(recs["before"], recs["after"])
     for name in recs:

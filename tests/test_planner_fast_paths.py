@@ -171,7 +171,7 @@ def test_nearest_node_is_the_brute_force_argmin(noise):
     """The planner's nearest (cached prior entries, closed-form kernel) is the
     node a brute-force loop over belief.py's definitions picks."""
     sc = bn.load_scenario("paper-multi")
-    planner = IGRRTStar(sc, n_nodes=150, seed=4, noise=noise)
+    planner = IGRRTStar(sc, n_nodes=150, seed=4, noise=noise, backend="numpy")
     planner.plan()
     tree = planner.tree_
     live = tree.live_arrays()

@@ -309,36 +309,47 @@ class IterationMixin:
         parent = int(live_idx[cand[parent_pos]])
         cost_q = float(via[parent_pos])
         goal = checker.in_target(x, P)
-        q = tree.add(x, P, parent, cost_q, float(c_info[parent_pos]), h_q, goal, L=L, Linv=Linv)
-        if bnb and cost_q + h_q > best * (1 + _REL_EPS):
-            # cannot lead to a better path: dead on arrival (counted, as the
-            # authors' node that their next branch-and-bound step removes)
-            tree.set_live(q, False)
-            st["hopeless_nodes"] += 1
-            st["pruned"] += 1
+        q = self._insert(tree, x, P, parent, cost_q, float(c_info[parent_pos]), h_q, goal, L, Linv, bnb, best)
+        if not tree.live[q]:
             tm["rewire"] += time.perf_counter() - t3
             return q
 
-        # rewire, cheapest new cost first; re-check against current costs since
-        # an earlier rewire in this loop may already have lowered a subtree
+        # rewire (cheapest new cost first)
         if nr:
             good = clear[nc:].nonzero()[0]
             if good.size:
-                nodes = live_idx[rw[good]]
-                new_cost = cost_q + r_D[good]
-                infos = r_info[good]
-                anc = tree.ancestors(q)
-                for i in new_cost.argsort(kind="stable").tolist():
-                    v = int(nodes[i])
-                    nc_v = float(new_cost[i])
-                    if v in anc or not tree.live[v] or not nc_v < tree.cost[v] * (1 - _REL_EPS):
-                        continue
-                    sub = tree.reparent(v, q, nc_v, float(infos[i]))
-                    st["rewires"] += 1
-                    if bnb:
-                        self._revive(tree, sub, best)
+                self._rewire(tree, q, live_idx[rw[good]], cost_q + r_D[good], r_info[good], bnb, best)
         tm["rewire"] += time.perf_counter() - t3
         return q
+
+    def _insert(self, tree: BeliefTree, x: np.ndarray, P: np.ndarray, parent: int, cost_q: float, info: float,
+                h_q: float, goal: bool, L: np.ndarray, Linv: np.ndarray, bnb: bool, best: float) -> int:
+        """Add the new node; one that cannot lead to a better path is dead on
+        arrival (not live; counted, as the authors' node that their next
+        branch-and-bound step removes)."""
+        q = tree.add(x, P, parent, cost_q, info, h_q, goal, L=L, Linv=Linv)
+        if bnb and cost_q + h_q > best * (1 + _REL_EPS):
+            tree.set_live(q, False)
+            self._stats["hopeless_nodes"] += 1
+            self._stats["pruned"] += 1
+        return q
+
+    def _rewire(self, tree: BeliefTree, q: int, nodes: np.ndarray, new_cost: np.ndarray, infos: np.ndarray,
+                bnb: bool, best: float) -> None:
+        """Rewire the ``nodes`` (their edges from q proven clear) under q,
+        cheapest new cost first; each is re-checked against the current
+        costs, since an earlier rewire in this loop may already have lowered
+        its subtree."""
+        anc = tree.ancestors(q)
+        for i in new_cost.argsort(kind="stable").tolist():
+            v = int(nodes[i])
+            nc_v = float(new_cost[i])
+            if v in anc or not tree.live[v] or not nc_v < tree.cost[v] * (1 - _REL_EPS):
+                continue
+            sub = tree.reparent(v, q, nc_v, float(infos[i]))
+            self._stats["rewires"] += 1
+            if bnb:
+                self._revive(tree, sub, best)
 
     def _revive(self, tree: BeliefTree, sub: list[int], best: float) -> None:
         """Nodes pruned earlier whose cost dropped with a rewired ancestor come back."""

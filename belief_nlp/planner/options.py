@@ -26,6 +26,7 @@ METRICS = ("entropy", "wasserstein", "hellinger")
 NOISE_MODELS = ("per_metre", "per_step")
 INFO_UNITS = ("nats", "bits")
 STEERING = ("geodesic", "linear")
+BACKENDS = ("auto", "numpy", "numba")
 
 
 @dataclass(frozen=True)
@@ -91,6 +92,14 @@ class PlannerOptions:
         scenario's chi2. ``plan(..., risk=Delta)`` sets it from the budget
         (:mod:`.budget`).
     progress : show a tqdm progress bar.
+    backend : how a 2-D attempt runs: ``"numpy"`` (the reference, the
+        default), ``"numba"`` (compiled, :mod:`.compiled`: the same steps
+        and collision layers, about 7x less CPU on paper-multi,
+        docs/planner.md; needs the ``belief-nlp[fast]`` extra, 2-D
+        scenarios and the entropy or hellinger metric) or ``"auto"`` (numba
+        when installed and supported, else numpy). The two draw the same
+        samples but round differently, so their trees part at the first tie
+        that rounding decides; their cost distributions are the same.
     """
 
     n_nodes: int = 500
@@ -115,6 +124,8 @@ class PlannerOptions:
     safety_margin: float = 1e-6
     progress: bool = False
     collision_chi2: float | None = None
+    # "numpy" until seed-sensitive tests elsewhere allow "auto" (docs/planner.md, fourth round)
+    backend: str = "numpy"
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dict (tuples become lists)."""
@@ -236,4 +247,5 @@ def resolve_options(scenario_defaults: dict | None, scenario_alpha: float, scena
     if o["collision_chi2"] is not None:
         # below the scenario's chi2 the collision checks of verify(scenario, path) would fail
         o["collision_chi2"] = _real("collision_chi2", o["collision_chi2"], float(scenario_chi2), MAX_CHI2)
+    o["backend"] = _choice("backend", o["backend"], BACKENDS)
     return PlannerOptions(**o)

@@ -164,10 +164,14 @@ class PlanResult:
         iterative Theorem-1 minimiser (the rest were decided in closed form);
         ``undecided_pairs``: those of them whose rigorous bounds decided
         nothing (rejected as collisions, never passed); the ``collision_*``
-        entries break the decisions down by layer.
+        entries break the decisions down by layer. ``backend``: the
+        IG-RRT* backend that ran (``"numpy"`` or ``"numba"``).
     timings : dict
         Seconds: ``sample``, ``candidates``, ``collision``, ``rewire``,
         ``prune``, ``verify``, ``total`` (wall) and ``cpu`` (process time).
+        The numba backend adds ``compiled`` (its compiled calls, which do
+        what ``sample`` to ``collision`` time in numpy; ``collision`` is then
+        the exact fallback).
     verification : dict or None
         ``VerificationReport.to_dict()`` of the returned path.
     options : dict

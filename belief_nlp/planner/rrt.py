@@ -37,6 +37,9 @@ as nodes (as the authors' loop); they count as attempts.
 
 The radius follows the authors: r_n = min(max_radius, gamma (log n / n)^(1/d))
 with n the number of live nodes plus one.
+
+Steps 1-7 run in numpy (:mod:`.iteration`, the reference) or, in 2-D with
+numba installed, compiled (:mod:`.compiled`): ``PlannerOptions.backend``.
 """
 
 from __future__ import annotations
@@ -54,6 +57,7 @@ from ..errors import ValidationError
 from ..path import BeliefPath
 from ..scenario import Scenario, load_scenario
 from .collision import CollisionChecker
+from .compiled import resolve_backend
 from .iteration import _REL_EPS, IterationMixin
 from .metrics import EdgeMetric
 from .options import PlannerOptions, default_gamma, resolve_options
@@ -127,6 +131,8 @@ class IGRRTStar(IterationMixin):
         zeta = math.pi ** (self.dim / 2) / math.gamma(self.dim / 2 + 1)
         self._logdet_max = 2.0 * math.log(_polytope_volume(sc.target) / zeta) - self.dim * math.log(sc.chi2)
         self.tree_: BeliefTree | None = None
+        # "numpy" or "numba" (ValidationError for numba when it cannot run here)
+        self.backend = resolve_backend(o.backend, self.dim, o.metric)
 
     # ------------------------------------------------------------------- plan
     def plan(self) -> PlanResult:
@@ -152,6 +158,13 @@ class IGRRTStar(IterationMixin):
                                  "pruned": 0, "revived": 0, "hopeless_nodes": 0, "goal_nodes": 0}
         timings = {"sample": 0.0, "candidates": 0.0, "collision": 0.0, "rewire": 0.0, "prune": 0.0}
         self._stats, self._timings = stats, timings
+        step = self._iterate
+        compiled = None
+        if self.backend == "numba":
+            from .compiled.driver import CompiledAttempt
+
+            compiled = CompiledAttempt(self, checker)
+            step = compiled.iterate
         history: list[float] = [math.inf]
         trace: list[list[float]] = []           # [[seconds, best cost]] at each improvement
         best, best_node = math.inf, -1
@@ -176,7 +189,7 @@ class IGRRTStar(IterationMixin):
                     break
                 stats["attempts"] += 1
                 rewires = stats["rewires"]
-                q = self._iterate(samples, checker, tree, best)
+                q = step(samples, checker, tree, best)
                 if q is None:
                     continue
                 # best cost: a new goal node, or costs of goal nodes dropped by
@@ -217,6 +230,9 @@ class IGRRTStar(IterationMixin):
             if progress is not None:
                 progress.close()
 
+        if compiled is not None:
+            compiled.flush(stats, checker.stats)
+        stats["backend"] = self.backend
         stats.update({"nodes": tree.n, "live_nodes": int(np.count_nonzero(tree.live[: tree.n])),
                       "goal_nodes": int(np.count_nonzero(tree.goal[: tree.n]))})
         stats.update({f"collision_{k}": v for k, v in checker.stats.items()})

@@ -1,0 +1,84 @@
+"""The compiled (numba) attempt of IG-RRT* for 2-D scenarios: ``PlannerOptions.backend``.
+
+``"numpy"`` runs :meth:`..iteration.IterationMixin._iterate`, the reference;
+``"numba"`` runs :class:`.driver.CompiledAttempt`: one compiled call per
+attempt for nearest, steering, shrinking, edge costs and the collision
+decisions (numba is the optional extra ``belief-nlp[fast]``); ``"auto"``
+takes numba when it is installed and the configuration is supported.
+Compiled functions are cached on disk (``cache=True``), so the compilation
+is paid once per machine and source version, not per process. numba's cache
+of a function is keyed on its own file only, not on the files of the
+functions it calls; :func:`drop_stale_cache` (run when the driver is
+imported) removes the cached machine code when any source changed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+from pathlib import Path
+
+from ...errors import ValidationError
+
+__all__ = ["available", "unsupported", "resolve_backend", "drop_stale_cache"]
+
+_HERE = Path(__file__).resolve().parent
+# the sources of the compiled functions (refine_scalar's layers are compiled from its Python source)
+# and of the constants compiled into them (metrics.LOSSLESS_RTOL, iteration._REL_EPS)
+_SOURCES = ([_HERE / f for f in ("linalg.py", "collide.py", "attempt.py")]
+            + [_HERE.parent / f for f in ("refine_scalar.py", "metrics.py", "iteration.py")])
+
+BACKENDS = ("auto", "numpy", "numba")
+
+def available() -> bool:
+    """Whether numba can be imported (without importing it)."""
+    return importlib.util.find_spec("numba") is not None
+
+def unsupported(dim: int, metric: str) -> str | None:
+    """Why the compiled attempt cannot serve this configuration, or None."""
+    if dim != 2:
+        return f"it serves 2-D scenarios, not {dim}-D"
+    if metric not in ("entropy", "hellinger"):
+        return f"it serves the entropy and hellinger metrics, not {metric!r}"
+    return None
+
+def resolve_backend(backend: str, dim: int, metric: str) -> str:
+    """The backend a planner runs: ``"numpy"`` or ``"numba"``.
+
+    Raises
+    ------
+    ValidationError
+        ``backend="numba"`` without numba installed, or for a configuration
+        the compiled attempt does not serve.
+    """
+    if backend == "numpy":
+        return "numpy"
+    why = unsupported(dim, metric)
+    if backend == "auto":
+        return "numba" if why is None and available() else "numpy"
+    if not available():
+        raise ValidationError("backend", "'numba' needs the numba package: pip install 'belief-nlp[fast]' "
+                                         "(or use backend='numpy')")
+    if why is not None:
+        raise ValidationError("backend", f"'numba' is not available here: {why} (use 'auto' or 'numpy')")
+    return "numba"
+
+
+def drop_stale_cache() -> None:
+    """Remove numba's cached machine code of the compiled attempt when one of
+    its sources changed since the cache was written (an edited callee would
+    otherwise run stale from the caller's cache). Best effort: a read-only
+    install keeps its cache where numba puts it (its files change only with
+    a new version)."""
+    stamp = hashlib.sha1(b"".join(p.read_bytes() for p in _SOURCES)).hexdigest()
+    marker = _HERE / "__pycache__" / "sources.sha1"
+    try:
+        if marker.exists() and marker.read_text() == stamp:
+            return
+        for folder, prefix in ((_HERE, ""), (_HERE.parent, "refine_scalar.")):
+            for f in (folder / "__pycache__").glob(prefix + "*.nb[ic]"):
+                f.unlink()
+        marker.parent.mkdir(exist_ok=True)
+        marker.write_text(stamp)
+    except OSError:
+        pass
