@@ -23,7 +23,7 @@ from belief_nlp.study import load_study, run_study
 
 STUDY = {"study": {"name": "export", "scenarios": ["paper-multi"], "seeds": [0, 1], "alpha": [0.1, 1.0],
                    "K": [0], "methods": ["none", "ccp"], "case_timeout": 300},
-         "planner": {"n_nodes": 150, "noise": "per_step"},
+         "planner": {"n_nodes": 400, "noise": "per_step"},
          "solver": {"ccp": {"max_iter": 2}}}
 
 STANDARD = ["id", "name", "totaltime", "timelimit", "memorylimit", "runcount", "version", "hostname", "cpuinfo",

@@ -319,7 +319,8 @@ def test_backend_option_is_validated(monkeypatch):
         IGRRTStar(cube, backend="numba")
     with pytest.raises(ValidationError, match="backend.*wasserstein"):
         IGRRTStar(quad, backend="numba", metric="wasserstein")
-    assert IGRRTStar(quad).backend == "numpy"                      # the default
+    assert IGRRTStar(quad).backend == "numba"                      # the default, auto, with numba installed
+    assert IGRRTStar(quad, backend="numpy").backend == "numpy"
     assert IGRRTStar(cube, backend="auto").backend == "numpy"
     assert IGRRTStar(quad, metric="wasserstein", backend="auto").backend == "numpy"
     assert IGRRTStar(quad, backend="auto").backend == "numba"
@@ -328,3 +329,20 @@ def test_backend_option_is_validated(monkeypatch):
     with pytest.raises(ValidationError, match=r"backend.*belief-nlp\[fast\]"):
         IGRRTStar(quad, backend="numba")
     assert IGRRTStar(quad, backend="auto").backend == "numpy"
+    assert IGRRTStar(quad).backend == "numpy"                      # without numba, the default plans in numpy
+
+
+def test_cli_backend_option(tmp_path, capsys):
+    """``belief-nlp plan --backend``: the plan records the backend it ran;
+    a bad value is one line on stderr and exit 2."""
+    from belief_nlp.cli import main
+    from belief_nlp.planner import PlanResult
+
+    for backend in ("numpy", "numba"):
+        code = main(["plan", "quad", "--nodes", "150", "--alpha", "0.2", "--backend", backend, "--out", str(tmp_path / backend), "-q"])
+        assert code == 0
+        assert PlanResult.load(tmp_path / backend / "plan.json").stats["backend"] == backend
+    capsys.readouterr()
+    assert main(["plan", "quad", "--backend", "fortran", "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "backend" in err[0]

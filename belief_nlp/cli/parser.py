@@ -156,6 +156,9 @@ def _planner_args(p: argparse.ArgumentParser, nodes: int = 500, title: str = "pl
                      "per-metre one lets IG-RRT* connect at large alpha")
     g.add_argument("--no-branch-and-bound", dest="branch_and_bound", action="store_false",
                    help="do not prune nodes that cannot beat the best path")
+    g.add_argument("--backend", choices=("auto", "numpy", "numba"), default="auto",
+                   help="how a 2-D sampling attempt runs: numba (compiled; the 'fast' extra; about 12 s of "
+                        "compilation once per machine), numpy (the reference), auto (numba when installed)")
 
 
 def _smoother_args(p: argparse.ArgumentParser, max_iter: int | None = None, method: bool = True,

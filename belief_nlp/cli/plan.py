@@ -66,7 +66,7 @@ def _plan(run: _Run, sc, *, label: str = "", stem: str = "plan", figures: bool =
     t0 = time.perf_counter()
     extra = {} if a.max_radius is None else {"max_radius": a.max_radius}
     res = plan(sc, n_nodes=a.nodes, seed=a.seed, metric=a.metric, noise=a.noise, time_limit=a.time_limit,
-               branch_and_bound=a.branch_and_bound, progress=not run.quiet, **extra)
+               branch_and_bound=a.branch_and_bound, backend=a.backend, progress=not run.quiet, **extra)
     elapsed = time.perf_counter() - t0
     run.wrote(res.save(run.out / f"{stem}.{a.format}"))
     if res.success:

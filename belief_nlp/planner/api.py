@@ -103,8 +103,8 @@ def plan(scenario: Scenario, n_nodes: int | None = None, seed: int | None = 0, a
                                           "level (plan scenario.with_options(risk=None))")
         for name, value in (("n_nodes", n_nodes), ("branch_and_bound", branch_and_bound)):
             if value is not None:
-                raise ValidationError(name, f"applies to IG-RRT* only; OMPL planners are time-bounded "
-                                            f"(give time_limit)")
+                raise ValidationError(name, "applies to IG-RRT* only; OMPL planners are time-bounded "
+                                            "(give time_limit)")
         return plan_ompl(scenario, ompl_name, seed=seed, alpha=alpha, metric=metric, noise=noise,
                          time_limit=time_limit, **options)
     if noise is not None:

@@ -92,14 +92,16 @@ class PlannerOptions:
         scenario's chi2. ``plan(..., risk=Delta)`` sets it from the budget
         (:mod:`.budget`).
     progress : show a tqdm progress bar.
-    backend : how a 2-D attempt runs: ``"numpy"`` (the reference, the
-        default), ``"numba"`` (compiled, :mod:`.compiled`: the same steps
-        and collision layers, about 7x less CPU on paper-multi,
-        docs/planner.md; needs the ``belief-nlp[fast]`` extra, 2-D
-        scenarios and the entropy or hellinger metric) or ``"auto"`` (numba
-        when installed and supported, else numpy). The two draw the same
-        samples but round differently, so their trees part at the first tie
-        that rounding decides; their cost distributions are the same.
+    backend : how a 2-D attempt runs: ``"auto"`` (the default: numba when
+        installed and supported, else numpy), ``"numpy"`` (the reference)
+        or ``"numba"`` (compiled, :mod:`.compiled`: the same steps and
+        collision layers, about 7x less CPU on paper-multi, docs/planner.md;
+        needs the ``belief-nlp[fast]`` extra, 2-D scenarios and the entropy
+        or hellinger metric; the first plan of a machine compiles for about
+        12 s, cached on disk). The two draw the same samples but round
+        differently, so their trees part at the first tie that rounding
+        decides; their cost distributions are the same, and
+        ``PlanResult.stats["backend"]`` records which one ran.
     """
 
     n_nodes: int = 500
@@ -125,7 +127,7 @@ class PlannerOptions:
     progress: bool = False
     collision_chi2: float | None = None
     # "numpy" until seed-sensitive tests elsewhere allow "auto" (docs/planner.md, fourth round)
-    backend: str = "numpy"
+    backend: str = "auto"
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dict (tuples become lists)."""

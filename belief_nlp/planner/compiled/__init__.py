@@ -20,7 +20,7 @@ from pathlib import Path
 
 from ...errors import ValidationError
 
-__all__ = ["available", "unsupported", "resolve_backend", "drop_stale_cache"]
+__all__ = ["available", "unsupported", "resolve_backend", "drop_stale_cache", "cache_is_warm"]
 
 _HERE = Path(__file__).resolve().parent
 # the sources of the compiled functions (refine_scalar's layers are compiled from its Python source)
@@ -62,6 +62,18 @@ def resolve_backend(backend: str, dim: int, metric: str) -> str:
     if why is not None:
         raise ValidationError("backend", f"'numba' is not available here: {why} (use 'auto' or 'numpy')")
     return "numba"
+
+
+def cache_is_warm() -> bool:
+    """Whether numba's on-disk cache of the attempt is there (in the
+    package's ``__pycache__``; with ``NUMBA_CACHE_DIR`` set it cannot be
+    seen from here and counts as warm): the first plan of a machine compiles
+    for about 12 s (docs/planner.md, "Fourth round"), later ones load it."""
+    import os
+
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return True
+    return any((_HERE / "__pycache__").glob("attempt.attempt-*.nbi"))
 
 
 def drop_stale_cache() -> None:
