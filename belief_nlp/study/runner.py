@@ -9,7 +9,7 @@ Row columns (one row per case and method variant; docs/studies.md):
 
 identity  study, case_key, arm, scenario, scenario_kind, scenario_ref, seed, alpha, K (asked; None = one
           step per edge), K_used, planner (JSON), planner_<option> (each planner option), planner_name
-          ("igrrt" or "ompl:<Class>"), method (label),
+          ("igrrt" or "ompl:<Class>"), planner_backend (IG-RRT*'s attempts: "numba" or "numpy"), method (label),
           method_name, method_options (JSON)
 outcome   status, success, message, error, safe, min_margin, worst, warm_start_fallback, fallback_reason
 costs     planner_cost (the planner's own objective), warm_start_cost, cost, control, information,
@@ -100,7 +100,8 @@ def _base_row(case: Case, variant: MethodVariant) -> dict:
     row: dict[str, Any] = {
         "study": case.study, "case_key": case.key, "arm": case.arm, "scenario": case.scenario.label,
         "scenario_kind": case.scenario.kind, "scenario_ref": case.scenario.ref, "seed": case.seed,
-        "alpha": case.alpha, "K": case.K, "K_used": None, "planner": canonical_json(case.planner)}
+        "alpha": case.alpha, "K": case.K, "K_used": None, "planner": canonical_json(case.planner),
+        "planner_backend": ""}
     for k, val in sorted(case.planner.items()):
         row[f"planner_{k}"] = val if isinstance(val, (int, float, str, bool)) else json.dumps(val)
     row.update({
@@ -228,6 +229,8 @@ def run_case(case: Case | dict) -> list[dict]:
             planned = plan(sc, seed=case.seed, alpha=case.alpha, **popts)
             common["plan_time"] = time.perf_counter() - t
             common["planner_cost"] = float(planned.cost)
+            # numba and numpy attempts round apart (same cost distribution, other trees): the row says which ran
+            common["planner_backend"] = str(planned.stats.get("backend", ""))
             common["plan_trace"] = json.dumps(planned.cost_trace)
             if not planned.success or planned.path is None:
                 return _fail_rows(case, variants, "plan_failed", f"planner: {planned.message}", common)
