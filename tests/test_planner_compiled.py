@@ -346,3 +346,21 @@ def test_cli_backend_option(tmp_path, capsys):
     assert main(["plan", "quad", "--backend", "fortran", "--out", str(tmp_path / "bad")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "backend" in err[0]
+
+
+def test_a_cold_cache_is_announced(monkeypatch, tmp_path, capsys):
+    """The first numba plan of a machine compiles for seconds: the CLI says so
+    (the library logs it at INFO); a warm cache, numpy or 3-D say nothing."""
+    from belief_nlp.cli import main
+
+    monkeypatch.setattr(compiled, "cache_is_warm", lambda: False)
+    assert compiled.cold_compile_note("auto", 2, "entropy") == compiled.COLD_NOTE
+    assert compiled.cold_compile_note("numpy", 2, "entropy") is None
+    assert compiled.cold_compile_note("auto", 3, "entropy") is None
+    assert compiled.cold_compile_note("numba", 3, "entropy") is None       # the planner reports that one
+    assert main(["plan", "quad", "--nodes", "150", "--alpha", "0.2", "--out", str(tmp_path)]) == 0
+    assert "compiling the numba attempt" in capsys.readouterr().err
+    monkeypatch.setattr(compiled, "cache_is_warm", lambda: True)
+    assert compiled.cold_compile_note("auto", 2, "entropy") is None
+    assert main(["plan", "quad", "--nodes", "150", "--alpha", "0.2", "--out", str(tmp_path)]) == 0
+    assert "compiling" not in capsys.readouterr().err

@@ -59,10 +59,14 @@ def _plan(run: _Run, sc, *, label: str = "", stem: str = "plan", figures: bool =
     """Plan with the args' planner options; write the result file (+ figures).
     Returns the PlanResult (successful or not)."""
     from ..planner import plan
+    from ..planner.compiled import cold_compile_note
 
     a = run.args
     log.info("%splanning on %s with IG-RRT*: %d nodes, seed %d, alpha %g, %s noise, %s", label, sc.name or "scenario",
              a.nodes, a.seed, sc.alpha, a.noise, _radius_note(sc, a.max_radius))
+    note = cold_compile_note(a.backend, sc.dim, a.metric)
+    if note:                                    # the planner logs it too, but below the CLI's default level
+        log.info("%s%s", label, note)
     t0 = time.perf_counter()
     extra = {} if a.max_radius is None else {"max_radius": a.max_radius}
     res = plan(sc, n_nodes=a.nodes, seed=a.seed, metric=a.metric, noise=a.noise, time_limit=a.time_limit,

@@ -161,12 +161,11 @@ class IGRRTStar(IterationMixin):
         step = self._iterate
         compiled = None
         if self.backend == "numba":
-            from .compiled import cache_is_warm
+            from .compiled import COLD_NOTE, cache_is_warm
             from .compiled.driver import CompiledAttempt      # drops a stale cache first
 
             if not cache_is_warm():
-                log.info("IG-RRT*: compiling the numba attempt, about 12 s once per machine "
-                         "(backend='numpy' plans without it)")
+                log.info(COLD_NOTE)
 
             compiled = CompiledAttempt(self, checker)
             step = compiled.iterate

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from ...errors import ValidationError
 
-__all__ = ["available", "unsupported", "resolve_backend", "drop_stale_cache", "cache_is_warm"]
+__all__ = ["available", "unsupported", "resolve_backend", "drop_stale_cache", "cache_is_warm", "cold_compile_note"]
 
 _HERE = Path(__file__).resolve().parent
 # the sources of the compiled functions (refine_scalar's layers are compiled from its Python source)
@@ -74,6 +74,20 @@ def cache_is_warm() -> bool:
     if os.environ.get("NUMBA_CACHE_DIR"):
         return True
     return any((_HERE / "__pycache__").glob("attempt.attempt-*.nbi"))
+
+
+COLD_NOTE = ("IG-RRT*: compiling the numba attempt, about 12 s once per machine "
+             "(backend='numpy' plans without it)")
+
+
+def cold_compile_note(backend: str, dim: int, metric: str) -> str | None:
+    """:data:`COLD_NOTE` when a plan with these settings will compile the
+    numba attempt first (numba runs and its cache is cold), else None."""
+    try:
+        runs_numba = resolve_backend(backend, dim, metric) == "numba"
+    except ValidationError:
+        return None                         # the planner itself reports the bad option
+    return COLD_NOTE if runs_numba and not cache_is_warm() else None
 
 
 def drop_stale_cache() -> None:
