@@ -65,15 +65,19 @@ def resolve_backend(backend: str, dim: int, metric: str) -> str:
 
 
 def cache_is_warm() -> bool:
-    """Whether numba's on-disk cache of the attempt is there (in the
-    package's ``__pycache__``; with ``NUMBA_CACHE_DIR`` set it cannot be
-    seen from here and counts as warm): the first plan of a machine compiles
-    for about 12 s (docs/planner.md, "Fourth round"), later ones load it."""
-    import os
+    """Whether numba's on-disk cache of the attempt is there: the first plan
+    of a machine compiles for about 12 s (docs/planner.md, "Fourth round"),
+    later ones load it. Asks numba where it keeps the attempt's cache (next
+    to the source, or a user-wide folder when the package is read-only, or
+    ``NUMBA_CACHE_DIR``); imports numba (about 0.2 s), so call it only when
+    numba is about to run."""
+    from . import driver  # noqa: F401 -- drops a stale cache before numba reads it
+    from .attempt import attempt
 
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        return True
-    return any((_HERE / "__pycache__").glob("attempt.attempt-*.nbi"))
+    try:
+        return Path(attempt._cache._cache_file._index_path).exists()     # numba's own locator (private API)
+    except AttributeError:                                                # another numba: look next to the source
+        return any((_HERE / "__pycache__").glob("attempt.attempt-*.nbi"))
 
 
 COLD_NOTE = ("IG-RRT*: compiling the numba attempt, about 12 s once per machine "
