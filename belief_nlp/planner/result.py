@@ -171,7 +171,9 @@ class PlanResult:
         ``prune``, ``verify``, ``total`` (wall) and ``cpu`` (process time).
         The numba backend adds ``compiled`` (its compiled calls, which do
         what ``sample`` to ``collision`` time in numpy; ``collision`` is then
-        the exact fallback).
+        the exact fallback) and ``compile`` (loading the compiled attempt,
+        about 12 s on a machine's first numba plan; ``total``, ``cpu``, the
+        time limit and ``cost_trace`` do not count it).
     verification : dict or None
         ``VerificationReport.to_dict()`` of the returned path.
     options : dict

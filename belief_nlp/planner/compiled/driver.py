@@ -11,6 +11,7 @@ the rewiring edges if the parent was among those.
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -101,6 +102,29 @@ class CompiledAttempt:
         self.stats = np.zeros(8, dtype=np.int64)
         self.ibuf = self.fbuf = None
         self.bnb_option = o.branch_and_bound
+
+    def warm_up(self, tree, sample: tuple[np.ndarray, np.ndarray]) -> float:
+        """Compile both compiled entry points, or load them from numba's
+        cache, before the planner's clock runs (a first numba plan on a
+        machine compiles for about 12 s, which a time limit must not count):
+        one attempt on ``sample`` against the tree as it is (the root) and a
+        rewiring call with no edges; both only write scratch buffers and the
+        counters, which are reset. ``sample`` comes from a stream like the
+        run's, so the argument types (and the compiled specialisation) are
+        the run's. Returns the seconds it took."""
+        t0 = time.perf_counter()
+        xs, Ps = sample
+        self._buffers(tree.x.shape[0])
+        ibuf, fbuf = self.ibuf, self.fbuf
+        A.attempt(xs, Ps, tree.x, tree.pe, tree.le, tree.cost, tree.h, tree.live, tree.n, self.F, self.nf,
+                  self.n_obs, self.VE, self.T, self.prm, self.iprm, math.inf, False, ibuf, fbuf, self.stack,
+                  self.pend, self.out, self.stats)
+        x0, x1 = (float(v) for v in xs)
+        A.decide_rewires(x0, x1, float(Ps[0, 0]), float(Ps[0, 1]), float(Ps[1, 1]), 0.0, 0, tree.x, tree.cost,
+                         self.F, self.nf, self.n_obs, self.VE, self.prm, self.iprm, ibuf, fbuf, self.stack,
+                         self.pend, self.stats)
+        self.stats[:] = 0
+        return time.perf_counter() - t0
 
     def _buffers(self, cap: int) -> None:
         if self.ibuf is None or self.ibuf.shape[1] < cap:
