@@ -265,28 +265,44 @@ def k_study(args) -> dict:
     return out
 
 
+def _plans(n_paper: int, n_maps: int) -> dict:
+    """(map name, seed) -> (scenario, path): one per-step N = 500 plan on each
+    of paper-multi seeds 0..n_paper-1 and random-polygons maps 0..n_maps-1
+    (seed = map); maps without a plan are left out."""
+    from belief_nlp.families import generate
+
+    maps = [("paper-multi", s, bn.load_scenario("paper-multi")) for s in range(n_paper)]
+    maps += [(f"random-polygons@{m}", m, generate("random-polygons", m)) for m in range(n_maps)]
+    plans = {}
+    for name, seed, sc in maps:
+        plan = bn.plan(sc, n_nodes=500, seed=seed, noise="per_step")
+        if plan.success:
+            plans[name, seed] = (sc, plan.path)
+    return plans
+
+
+def _warm_starts(plans: dict, keys, K: int, out: dict) -> dict:
+    """key -> (scenario, warm start at K); a plan without one is recorded in
+    ``out["no_warm_start"]``, not smoothed."""
+    ws = {}
+    for key in keys:
+        sc, path = plans[key]
+        try:
+            ws[key] = (sc, bn.warm_start(sc, path, K=K))
+        except bn.InfeasibleStartError as exc:
+            out.setdefault("no_warm_start", []).append({"map": key[0], "seed": key[1], "K": K, "error": str(exc)})
+    return ws
+
+
 def variant_study(args, variants: dict) -> dict:
     """``variants`` (name -> smooth keywords) on paper-multi and the
     random-polygons family (maps 0..n-1), each map with one per-step N = 500
     plan (seed = map), both alphas, at every K."""
-    from belief_nlp.families import generate
-
-    maps = [("paper-multi", s, bn.load_scenario("paper-multi")) for s in range(args.seeds)]
-    maps += [(f"random-polygons@{m}", m, generate("random-polygons", m)) for m in range(args.maps)]
-    starts = []
-    for name, seed, sc in maps:
-        plan = bn.plan(sc, n_nodes=500, seed=seed, noise="per_step")
-        if plan.success:
-            starts.append((name, seed, sc, plan.path))
+    plans = _plans(args.seeds, args.maps)
     out = {"machine": {"cpus": os.cpu_count(), "loadavg_at_start": os.getloadavg()}, "settings": vars(args),
            "variants": []}
     for K in args.K:
-        ws = {}
-        for name, seed, sc, path in starts:
-            try:
-                ws[name, seed] = (sc, bn.warm_start(sc, path, K=K))
-            except bn.InfeasibleStartError as exc:           # recorded, not smoothed
-                out.setdefault("no_warm_start", []).append({"map": name, "seed": seed, "K": K, "error": str(exc)})
+        ws = _warm_starts(plans, plans, K, out)
         for vname, kw in variants.items():
             ipopt.clear_cache()
             rows = []
@@ -325,27 +341,14 @@ def floor_study(args, variants: dict | None = None) -> dict:
     and random-polygons maps 0..``--maps``-1, both alphas; ``--auto`` adds
     auto's final cost and CPU per case. The record is rewritten after every
     (K, variant), so a partial run is kept."""
-    from belief_nlp.families import generate
-
     path = args.out or HERE / f"ipopt_{args.study}.json"
-    maps = [("paper-multi", s, bn.load_scenario("paper-multi")) for s in range(max(args.seeds, args.tail_seeds))]
-    maps += [(f"random-polygons@{m}", m, generate("random-polygons", m)) for m in range(args.maps)]
-    plans = {}
-    for name, seed, sc in maps:
-        plan = bn.plan(sc, n_nodes=500, seed=seed, noise="per_step")
-        if plan.success:
-            plans[name, seed] = (sc, plan.path)
+    plans = _plans(max(args.seeds, args.tail_seeds), args.maps)
     out = {"machine": {"cpus": os.cpu_count(), "loadavg_at_start": os.getloadavg()}, "settings": vars(args),
            "variants": []}
     runs = [(K, [k for k in plans if k[0] == "paper-multi" and k[1] < args.tail_seeds]) for K in args.tail_K]
     runs += [(K, [k for k in plans if k[0] != "paper-multi" or k[1] < args.seeds]) for K in args.K]
     for K, keys in runs:
-        ws = {}
-        for key in keys:
-            try:
-                ws[key] = (plans[key][0], bn.warm_start(plans[key][0], plans[key][1], K=K))
-            except bn.InfeasibleStartError as exc:           # recorded, not smoothed
-                out.setdefault("no_warm_start", []).append({"map": key[0], "seed": key[1], "K": K, "error": str(exc)})
+        ws = _warm_starts(plans, keys, K, out)
         if variants is None:
             variants = {f"floor {f:g}": dict(floor=f) for f in args.floors} if args.floors else FLOOR_VARIANTS
         for vname, kw in variants.items():
