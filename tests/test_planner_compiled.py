@@ -325,6 +325,7 @@ def test_backend_option_is_validated(monkeypatch):
     assert IGRRTStar(quad, metric="wasserstein", backend="auto").backend == "numpy"
     assert IGRRTStar(quad, backend="auto").backend == "numba"
     assert IGRRTStar(quad.with_options(planner={"backend": "numba"})).backend == "numba"   # a scenario's table
+    monkeypatch.setattr(compiled, "installed", lambda: False)
     monkeypatch.setattr(compiled, "available", lambda: False)
     with pytest.raises(ValidationError, match=r"backend.*belief-nlp\[fast\]"):
         IGRRTStar(quad, backend="numba")
@@ -392,3 +393,32 @@ def test_loading_the_compiled_attempt_is_not_planning_time(monkeypatch):
     b = bn.plan(sc, n_nodes=300, seed=1, backend="numba")
     assert a.cost == b.cost and a.stats["attempts"] == b.stats["attempts"]
     assert np.array_equal(a.tree.x, b.tree.x) and np.array_equal(a.tree.parent, b.tree.parent)
+
+
+def test_a_numba_that_does_not_import_leaves_auto_on_numpy(monkeypatch, caplog):
+    """numba installed but not importable (say, a NumPy newer than it
+    supports): "auto" plans in numpy with one warning, "numba" names the
+    field; nothing crashes."""
+    import builtins
+
+    real_import = builtins.__import__
+
+    def broken(name, *args, **kwargs):                    # what an unsupported NumPy makes numba do
+        if name == "numba":
+            raise ImportError("Numba needs NumPy 2.3 or less. Got NumPy 9.9.")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", broken)
+    compiled.available.cache_clear()
+    try:
+        with caplog.at_level("WARNING", logger="belief_nlp.planner"):
+            assert not compiled.available()
+        assert "does not import" in caplog.text
+        quad = bn.load_scenario("quad")
+        assert IGRRTStar(quad).backend == "numpy"
+        with pytest.raises(ValidationError, match="backend.*does not import"):
+            IGRRTStar(quad, backend="numba")
+    finally:
+        monkeypatch.undo()
+        compiled.available.cache_clear()
+    assert compiled.available()

@@ -14,14 +14,17 @@ imported) removes the cached machine code when any source changed.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
+import logging
 from pathlib import Path
 
 from ...errors import ValidationError
 
-__all__ = ["available", "unsupported", "resolve_backend", "drop_stale_cache", "cache_is_warm", "cold_compile_note"]
+__all__ = ["installed", "available", "unsupported", "resolve_backend", "drop_stale_cache", "cache_is_warm", "cold_compile_note"]
 
+log = logging.getLogger("belief_nlp.planner")
 _HERE = Path(__file__).resolve().parent
 # the sources of the compiled functions (refine_scalar's layers are compiled from its Python source)
 # and of the constants compiled into them (metrics.LOSSLESS_RTOL, iteration._REL_EPS)
@@ -30,9 +33,28 @@ _SOURCES = ([_HERE / f for f in ("linalg.py", "collide.py", "attempt.py")]
 
 BACKENDS = ("auto", "numpy", "numba")
 
-def available() -> bool:
-    """Whether numba can be imported (without importing it)."""
+
+def installed() -> bool:
+    """Whether numba is installed (without importing it)."""
     return importlib.util.find_spec("numba") is not None
+
+
+@functools.lru_cache(maxsize=1)
+def available() -> bool:
+    """Whether numba is installed *and* imports (once per process, about
+    0.2 s): an installed numba that does not import -- typically a NumPy newer
+    than the numba release supports -- leaves ``"auto"`` on numpy, with one
+    warning, instead of failing every plan."""
+    if not installed():
+        return False
+    try:
+        import numba  # noqa: F401
+    except Exception as exc:            # ImportError, or numba's own version checks
+        log.warning("numba is installed but does not import (%s); IG-RRT* plans with its numpy backend",
+                    str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+        return False
+    return True
+
 
 def unsupported(dim: int, metric: str) -> str | None:
     """Why the compiled attempt cannot serve this configuration, or None."""
@@ -57,6 +79,9 @@ def resolve_backend(backend: str, dim: int, metric: str) -> str:
     if backend == "auto":
         return "numba" if why is None and available() else "numpy"
     if not available():
+        if installed():
+            raise ValidationError("backend", "'numba': numba is installed but does not import here (its "
+                                             "warning says why); use backend='numpy' or 'auto'")
         raise ValidationError("backend", "'numba' needs the numba package: pip install 'belief-nlp[fast]' "
                                          "(or use backend='numpy')")
     if why is not None:
