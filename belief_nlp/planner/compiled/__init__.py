@@ -64,14 +64,16 @@ def unsupported(dim: int, metric: str) -> str | None:
         return f"it serves the entropy and hellinger metrics, not {metric!r}"
     return None
 
+
 def resolve_backend(backend: str, dim: int, metric: str) -> str:
     """The backend a planner runs: ``"numpy"`` or ``"numba"``.
 
     Raises
     ------
     ValidationError
-        ``backend="numba"`` without numba installed, or for a configuration
-        the compiled attempt does not serve.
+        ``backend="numba"`` without numba installed (or with one that does
+        not import), or for a configuration the compiled attempt does not
+        serve.
     """
     if backend == "numpy":
         return "numpy"
