@@ -422,3 +422,38 @@ def test_a_numba_that_does_not_import_leaves_auto_on_numpy(monkeypatch, caplog):
         monkeypatch.undo()
         compiled.available.cache_clear()
     assert compiled.available()
+
+
+def test_a_changed_source_drops_numbas_cache(tmp_path, monkeypatch):
+    """numba keys a cached function on its own file only; an edit in a file it
+    calls (or whose constants it compiled in) must drop the cached machine
+    code, and an unchanged tree must keep it."""
+    from belief_nlp.planner.compiled import cache
+
+    pkg = tmp_path / "planner"
+    here = pkg / "compiled"
+    (here / "__pycache__").mkdir(parents=True)
+    (pkg / "__pycache__").mkdir()
+    src = [here / "collide.py", pkg / "refine_scalar.py"]
+    for f in src:
+        f.write_text("x = 1\n")
+    monkeypatch.setattr(cache, "_HERE", here)
+    monkeypatch.setattr(cache, "_SOURCES", src)
+
+    def cached():
+        return sorted(p.name for d in (here, pkg) for p in (d / "__pycache__").glob("*.nb[ic]"))
+
+    def compile_all():
+        for name in ("attempt.attempt-1.py311.nbi", "attempt.attempt-1.py311.1.nbc"):
+            (here / "__pycache__" / name).write_text("")
+        (pkg / "__pycache__" / "refine_scalar._factor-9.py311.nbi").write_text("")
+
+    compile_all()
+    cache.drop_stale_cache()                     # no stamp yet: the cache is of unknown sources
+    assert cached() == []
+    compile_all()
+    cache.drop_stale_cache()                     # same sources: kept
+    assert len(cached()) == 3
+    src[1].write_text("x = 2\n")                 # a callee edited
+    cache.drop_stale_cache()
+    assert cached() == []

@@ -8,29 +8,23 @@ takes numba when it is installed and the configuration is supported.
 Compiled functions are cached on disk (``cache=True``), so the compilation
 is paid once per machine and source version, not per process. numba's cache
 of a function is keyed on its own file only, not on the files of the
-functions it calls; :func:`drop_stale_cache` (run when the driver is
+functions it calls; :func:`.cache.drop_stale_cache` (run when the driver is
 imported) removes the cached machine code when any source changed.
 """
 
 from __future__ import annotations
 
 import functools
-import hashlib
 import importlib.util
 import logging
-from pathlib import Path
 
 from ...errors import ValidationError
+from .cache import cache_is_warm, drop_stale_cache
 
-__all__ = ["installed", "available", "unsupported", "resolve_backend", "drop_stale_cache", "cache_is_warm", "cold_compile_note"]
+__all__ = ["installed", "available", "unsupported", "resolve_backend", "drop_stale_cache", "cache_is_warm",
+           "cold_compile_note"]
 
 log = logging.getLogger("belief_nlp.planner")
-_HERE = Path(__file__).resolve().parent
-# the sources of the compiled functions (refine_scalar's layers are compiled from its Python source)
-# and of the constants compiled into them (metrics.LOSSLESS_RTOL, iteration._REL_EPS)
-_SOURCES = ([_HERE / f for f in ("linalg.py", "collide.py", "attempt.py")]
-            + [_HERE.parent / f for f in ("refine_scalar.py", "metrics.py", "iteration.py")])
-
 BACKENDS = ("auto", "numpy", "numba")
 
 
@@ -91,22 +85,6 @@ def resolve_backend(backend: str, dim: int, metric: str) -> str:
     return "numba"
 
 
-def cache_is_warm() -> bool:
-    """Whether numba's on-disk cache of the attempt is there: the first plan
-    of a machine compiles for about 12 s (docs/planner.md, "Fourth round"),
-    later ones load it. Asks numba where it keeps the attempt's cache (next
-    to the source, or a user-wide folder when the package is read-only, or
-    ``NUMBA_CACHE_DIR``); imports numba (about 0.2 s), so call it only when
-    numba is about to run."""
-    from . import driver  # noqa: F401 -- drops a stale cache before numba reads it
-    from .attempt import attempt
-
-    try:
-        return Path(attempt._cache._cache_file._index_path).exists()     # numba's own locator (private API)
-    except AttributeError:                                                # another numba: look next to the source
-        return any((_HERE / "__pycache__").glob("attempt.attempt-*.nbi"))
-
-
 COLD_NOTE = ("IG-RRT*: compiling the numba attempt, about 12 s once per machine "
              "(backend='numpy' plans without it)")
 
@@ -119,23 +97,3 @@ def cold_compile_note(backend: str, dim: int, metric: str) -> str | None:
     except ValidationError:
         return None                         # the planner itself reports the bad option
     return COLD_NOTE if runs_numba and not cache_is_warm() else None
-
-
-def drop_stale_cache() -> None:
-    """Remove numba's cached machine code of the compiled attempt when one of
-    its sources changed since the cache was written (an edited callee would
-    otherwise run stale from the caller's cache). Best effort: a read-only
-    install keeps its cache where numba puts it (its files change only with
-    a new version)."""
-    stamp = hashlib.sha1(b"".join(p.read_bytes() for p in _SOURCES)).hexdigest()
-    marker = _HERE / "__pycache__" / "sources.sha1"
-    try:
-        if marker.exists() and marker.read_text() == stamp:
-            return
-        for folder, prefix in ((_HERE, ""), (_HERE.parent, "refine_scalar.")):
-            for f in (folder / "__pycache__").glob(prefix + "*.nb[ic]"):
-                f.unlink()
-        marker.parent.mkdir(exist_ok=True)
-        marker.write_text(stamp)
-    except OSError:
-        pass

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..collision import _SCALAR_DEPTH
 from ..iteration import _EIG_FLOOR_FACTOR, _REL_EPS
-from . import drop_stale_cache
+from .cache import drop_stale_cache
 
 drop_stale_cache()          # before the compiled modules load their caches
 
