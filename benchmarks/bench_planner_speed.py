@@ -202,6 +202,40 @@ def compare(before: dict, after: dict, paired: bool = False) -> list[dict]:
     return out
 
 
+def plot_backends(data: dict, label: str, out: Path) -> Path:
+    """Two panels from the records ``label-numpy`` and ``label-numba``: CPU
+    seconds per plan by seed and noise model, and the best-cost distributions
+    (empirical CDFs over the cost seeds) of the largest N, per step."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    recs = {b: data["records"][f"{label}-{b}"]["runs"] for b in ("numpy", "numba")}
+    n_max = max(r["n_nodes"] for r in recs["numpy"])
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(10, 3.8))
+    for b, colour in (("numpy", "tab:blue"), ("numba", "tab:orange")):
+        for noise, marker in (("per_step", "o"), ("per_metre", "s")):
+            timed = [r for r in recs[b] if r["n_nodes"] == n_max and r["noise"] == noise and r["seed"] < 5]
+            if timed:
+                ax0.plot([r["seed"] for r in timed], [r["cpu_s"] for r in timed], marker, color=colour,
+                         label=f"{b}, {noise.replace('_', ' ')}")
+        costs = np.sort([r["best_cost"] for r in recs[b] if r["n_nodes"] == n_max and r["noise"] == "per_step"])
+        ax1.step(costs, np.arange(1, costs.size + 1) / costs.size, where="post", color=colour,
+                 label=f"{b} ({costs.size} seeds)")
+    ax0.axhline(0.75, color="k", lw=0.8, ls="--", label="issue 21 target")
+    ax0.set_xticks(range(5))
+    ax0.set(yscale="log", xlabel="planner seed", ylabel="CPU s per plan",
+            title=f"IG-RRT* on paper-multi, N = {n_max}")
+    ax0.legend(fontsize=8)
+    ax1.set(xlabel="best cost (per step)", ylabel="fraction of seeds", title="cost distribution, same seeds")
+    ax1.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--label", required=True, help="name of this record (e.g. before, after)")
@@ -217,7 +251,14 @@ def main(argv=None) -> int:
                     help="first measure imports and first plan calls in fresh processes (numba cache empty / warm)")
     ap.add_argument("--only-compile-cost", action="store_true", help="--compile-cost alone, no planner runs")
     ap.add_argument("--out", type=Path, default=RESULTS / OUT_NAME)
+    ap.add_argument("--plot", action="store_true",
+                    help="only draw the records LABEL-numpy and LABEL-numba (a PNG next to the record)")
     args = ap.parse_args(argv)
+    if args.plot:
+        png = plot_backends(json.loads(args.out.read_text()), args.label,
+                            args.out.with_name(f"planner_backends_{args.label}.png"))
+        print(f"wrote {png}")
+        return 0
     compile_record = compile_cost() if args.compile_cost or args.only_compile_cost else None
     if args.only_compile_cost:
         data = json.loads(args.out.read_text()) if args.out.exists() else {}
