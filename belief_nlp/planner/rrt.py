@@ -143,7 +143,8 @@ class IGRRTStar(IterationMixin):
         t_start = time.perf_counter()
         cpu_start = time.process_time()
         rng = np.random.default_rng(o.seed)
-        samples = BeliefSampler(sc, o.eig_range, o.eig_ratio, o.goal_bias).stream(rng)
+        sampler = BeliefSampler(sc, o.eig_range, o.eig_ratio, o.goal_bias)
+        samples = sampler.stream(rng)
         checker = CollisionChecker(sc, o.safety_margin, o.collision_chi2)
         tree = BeliefTree(self.dim, capacity=min(o.n_nodes, 4096))
         self.tree_ = tree
@@ -170,7 +171,7 @@ class IGRRTStar(IterationMixin):
             compiled = CompiledAttempt(self, checker)
             step = compiled.iterate
             # compile (or load) before the clock: the time limit and the anytime trace count planning only
-            probe = BeliefSampler(sc, o.eig_range, o.eig_ratio, o.goal_bias).stream(np.random.default_rng(0)).next()
+            probe = sampler.stream(np.random.default_rng(0)).next()     # a sample of the run's types, its rng apart
             c0 = time.process_time()
             timings["compile"] = compiled.warm_up(tree, probe[:2])
             t_start += timings["compile"]                  # "total" and "cpu" below are the planning's own

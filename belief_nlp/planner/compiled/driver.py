@@ -61,9 +61,15 @@ def transitions_clear(checker, x0: np.ndarray, P0: np.ndarray, x1: np.ndarray, W
     clear = status == CLEAR
     ex = (status == EXACT).nonzero()[0]
     if ex.size:
-        clear[ex] = ~checker._exact_rest(x0[ex], x1[ex], P0[ex], W_e[ex], np.arange(ex.size),
-                                         np.zeros(ex.size, dtype=bool))
+        clear[ex] = exact_clear(checker, x0[ex], P0[ex], x1[ex], W_e[ex])
     return clear
+
+
+def exact_clear(checker, x0: np.ndarray, P0: np.ndarray, x1: np.ndarray, W_e: np.ndarray) -> np.ndarray:
+    """(k,) the numpy checker's last layer, its exact minimiser, on k edges
+    the compiled layers left open."""
+    k = x0.shape[0]
+    return ~checker._exact_rest(x0, x1, P0, W_e, np.arange(k), np.zeros(k, dtype=bool))
 
 
 class CompiledAttempt:
@@ -132,10 +138,8 @@ class CompiledAttempt:
             self.fbuf = np.zeros((10, cap))
 
     def _exact_clear(self, checker, x0, P0, x1, w) -> np.ndarray:
-        """(k,) the exact check of k edges (the numpy checker's last layer)."""
-        k = x0.shape[0]
-        We = w[:, None, None] * self.W
-        return ~checker._exact_rest(x0, x1, P0, We, np.arange(k), np.zeros(k, dtype=bool))
+        """(k,) :func:`exact_clear` of k edges whose noise is w times W."""
+        return exact_clear(checker, x0, P0, x1, w[:, None, None] * self.W)
 
     def iterate(self, samples, checker, tree, best: float) -> int | None:
         """One sampling attempt; returns the new node's index or None."""
