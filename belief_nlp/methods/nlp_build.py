@@ -93,24 +93,7 @@ def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formul
     # of derived again
     own = nlp is view or scale != 1
     slot = backend.plugin + scale_key
-    given = shared.get(slot, {}) if own else {}
-    source = "built (derivatives shared)"
-    disk = disk_cache() if cache and own and backend.shared_functions and not given else None
-    if disk is not None:
-        disk_name = _derivatives_key(nlp, backend)
-        compiled = compile_enabled()
-        loaded = nlp_compiled.load(disk, disk_name) if compiled else None
-        if _complete(loaded, backend):
-            given, source, disk = loaded, "built (derivatives compiled)", None
-        else:
-            loaded = disk.load(disk_name, kind="nlp")
-            if _complete(loaded, backend):
-                given, source = loaded, "built (derivatives from disk)"
-                if compiled:            # an earlier build died, or was evicted: build it again
-                    nlp_compiled.start(disk, disk_name)
-                disk = None
-        if given:
-            shared[slot] = given
+    given, source, fill = _given_derivatives(nlp, backend, shared, slot, cache) if own else ({}, "", None)
     recorder = Recorder(nlp, keep=candidates, bar=None, stall=0)
     recorder.log_path = backend.log_file()
     name = f"belief_nlp_{backend.plugin}" + ("_scaled" if scale != 1 else "")
@@ -124,12 +107,39 @@ def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formul
                               f"{backend.name} refused them: {str(exc).splitlines()[-1][:200]}") from None
     if own and backend.shared_functions and not given:
         shared[slot] = _derivatives(solver, backend.shared_functions)
-        if disk is not None and _complete(shared[slot], backend) \
-                and disk.save(disk_name, shared[slot], kind="nlp") is not None and compile_enabled():
-            nlp_compiled.start(disk, disk_name)
+        if fill is not None and _complete(shared[slot], backend) \
+                and fill[0].save(fill[1], shared[slot], kind="nlp") is not None and compile_enabled():
+            nlp_compiled.start(*fill)
     if cache:
         _CACHE.put(key, (nlp, solver, recorder))
     return nlp, solver, recorder, "built" if not given else source
+
+
+def _given_derivatives(nlp: NLPProblem, backend: NLPBackend, shared: dict, slot: str,
+                       cache: bool) -> tuple[dict, str, Any]:
+    """The derivative functions a new solver of ``nlp`` is handed, where they
+    came from, and (disk, name) when the solver's own should be written to
+    the disk cache (None: not wanted, or already there). Sources in order:
+    this process (``shared[slot]``, filled by the other stage's solver), the
+    compiled library, the serialised disk entry; ``shared[slot]`` keeps
+    what the disk gave; ``cache`` False: no disk."""
+    if shared.get(slot):
+        return shared[slot], "built (derivatives shared)", None
+    disk = disk_cache() if cache and backend.shared_functions else None
+    if disk is None:
+        return {}, "", None
+    name = _derivatives_key(nlp, backend)
+    compiled = compile_enabled()
+    loaded = nlp_compiled.load(disk, name) if compiled else None
+    source = "built (derivatives compiled)"
+    if not _complete(loaded, backend):
+        loaded, source = disk.load(name, kind="nlp"), "built (derivatives from disk)"
+        if not _complete(loaded, backend):
+            return {}, "", (disk, name)
+        if compiled:            # an earlier build died, or was evicted: build it again
+            nlp_compiled.start(disk, name)
+    shared[slot] = loaded
+    return loaded, source, None
 
 
 def _derivatives_key(nlp: NLPProblem, backend: NLPBackend) -> str:
