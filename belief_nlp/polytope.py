@@ -340,7 +340,7 @@ class Polytope:
         unknown = set(data) - {"name", "vertices", "box", "A", "b"}
         if unknown:
             raise ScenarioFileError(f"{field_name}.{sorted(unknown)[0]}",
-                                  f"unknown key (a polytope takes 'name' and one of 'vertices', 'box' or 'A'/'b')")
+                                  "unknown key (a polytope takes 'name' and one of 'vertices', 'box' or 'A'/'b')")
         name = data.get("name", "")
         if not isinstance(name, str):
             raise ScenarioFileError(f"{field_name}.name", f"must be a string, got {type(name).__name__}")

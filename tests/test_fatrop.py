@@ -37,12 +37,15 @@ def test_converges_verified_with_raw_stats(small_start, ipopt_from):
     # one history record per fatrop solve, numbered by fatrop's own iteration count
     assert [h.iteration for h in res.history[1:]] == [sum(a["iter_count"] for a in att[:i + 1])
                                                       for i in range(len(att))]
+    # nit is the iterations fatrop performed, not the records (was 2 for 164 iterations at K = 20)
+    assert res.nit == res.stats["iter_count"] > len(res.history) - 1
 
 
 def test_iteration_limit_is_fatrops_own(small_start):
     sc, ws = small_start
     res = bn.smooth(sc, ws, method="fatrop", alpha=1.0, max_iter=5)
     assert res.status == "max_iter" and res.stats["iter_count"] <= 5 and res.safe
+    assert res.nit == res.stats["iter_count"]
 
 
 def test_bad_solver_options_are_our_error(small_start):

@@ -35,6 +35,9 @@ def test_converges_verified_on_paper_multi(hand_start, ipopt_from, alpha):
     # history: warm start, then one record per IPOPT iteration
     assert res.history[0].solver_status == "warm_start" and res.history[0].iteration == 0
     assert len(res.history) == res.nit + 1
+    # numbered 0..nit without repeats, also across the polish after a restoration
+    # phase (alpha = 1: IPOPT calls back once more than it counts on entering it)
+    assert [h.iteration for h in res.history] == list(range(res.nit + 1))
     # the floored log-Cholesky stage converged; the polish's records follow it
     assert res.stats["attempts"][0]["formulation"] == "logchol"
     assert res.stats["attempts"][0]["return_status"] == "Solve_Succeeded"
@@ -175,6 +178,45 @@ def test_solver_options_pass_through(hand_start):
     assert res.status == "max_iter" and res.nit == 4
     with pytest.raises(ValidationError, match="bogus"):
         bn.smooth(sc, ws, method="ipopt", solver_options={"bogus_option": 1})
+
+
+def _loads(library: str) -> bool:
+    import ctypes
+
+    try:
+        ctypes.CDLL(library)
+        return True
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("method", ["ipopt", "auto"])
+def test_missing_linear_solver_is_our_error(small_start, method):
+    """A linear solver whose library is absent passes nlpsol's option check
+    and fails at IPOPT's first solve (Invalid_Option, with an uninitialised
+    iteration count): that is a bad ``solver_options``, named as such."""
+    if _loads("libpardiso.so"):
+        pytest.skip("libpardiso.so is installed here: linear_solver 'pardiso' would run")
+    sc, ws = small_start
+    with pytest.raises(ValidationError, match=r"solver_options.*libpardiso\.so.*linear_solver 'pardiso'"):
+        bn.smooth(sc, ws, method=method, solver_options={"linear_solver": "pardiso"})
+
+
+def test_iteration_count_accounted_by_callbacks():
+    """The engine's iteration count: the solver's own when its callbacks
+    account for it, theirs when it is not a count (IPOPT after a failure
+    before its first iteration)."""
+    from belief_nlp.methods.ipopt import IPOPT
+    from belief_nlp.methods.nlp_engine import _iterations
+
+    class Calls:
+        calls = 62
+
+    assert _iterations({"iter_count": 61}, Calls, IPOPT) == 61
+    assert _iterations({"iter_count": 1826456736}, Calls, IPOPT) == 61
+    assert _iterations({"iter_count": -103725968}, Calls, IPOPT) == 61
+    Calls.calls = 0
+    assert _iterations({"iter_count": 89}, Calls, IPOPT) == 0
 
 
 def test_bad_method_options(small_start):

@@ -86,8 +86,8 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
             if not ccp_polish or problem.out_of_time():
                 return Outcome("converged", f"IPOPT: {first.message}", chk.point, "IPOPT", _totals(stats, "ipopt"),
                                "auto:ipopt")
-            problem.points[len(problem.history) - 1] = chk.point
-            second = _stage(problem, len(problem.history) + ccp_polish - 1, ccp.run, *ccp_opts, _start=chk.point)
+            problem.points[problem.iterations] = chk.point
+            second = _stage(problem, problem.iterations + ccp_polish, ccp.run, *ccp_opts, _start=chk.point)
             stats.update(ccp=second.stats, stages=["ipopt", "ccp polish"])
             # the driver picks the lowest-cost verified candidate: IPOPT's point or a polished one
             return Outcome("converged", f"IPOPT: {first.message}; CCP polish: {second.status}", None, "IPOPT+CCP",

@@ -221,7 +221,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     else:
         step = build_step()
     z, cost = (problem.start, problem.cost0) if _start is None else (_start, model.cost(_start)[0])
-    first = len(problem.history)                 # 1 for a plain run; after a previous stage's records
+    first = problem.iterations + 1               # 1 for a plain run; after a previous stage's records
     rho_e = np.full((D.K, D.J), float(rho)) if rho else initial_rho(model, z)
     rho_s = rho_e.copy()
     rho0 = rho_e.copy()

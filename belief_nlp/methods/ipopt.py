@@ -48,6 +48,7 @@ _CONVERGED = {"Solve_Succeeded", "Solved_To_Acceptable_Level"}
 _MAX_ITER = {"Maximum_Iterations_Exceeded"}
 _TIME = {"Maximum_CpuTime_Exceeded", "Maximum_WallTime_Exceeded"}
 _RESTO = re.compile(rb"^\s*\d+r\s", re.M)
+_REASON = re.compile(r"(?:Exception message|EXIT):\s*(.+)")
 _LOG_DIR: list[str] = []
 
 
@@ -94,6 +95,24 @@ class IpoptBackend(NLPBackend):
         fd, path = tempfile.mkstemp(suffix=".log", dir=_LOG_DIR[0])
         os.close(fd)
         return path
+
+    def refused(self, raw: str, opts: dict, log_path: str | None, offset: int) -> str | None:
+        # an unavailable linear solver (ma27, ma57, pardiso, ...) passes nlpsol's
+        # check and fails at the solve with Invalid_Option; the log says why
+        if raw != "Invalid_Option":
+            return None
+        try:
+            with open(log_path, "rb") as fh:
+                fh.seek(offset)
+                text = fh.read().decode(errors="replace")
+        except (OSError, TypeError):
+            text = ""
+        found = _REASON.search(text)
+        why = found.group(1).strip() if found else "Invalid_Option at its first iteration"
+        ls = opts.get("linear_solver")
+        hint = f" (linear_solver {ls!r}: its library is not installed here; IPOPT's default is 'mumps')" \
+            if ls not in (None, "mumps") and "shared object" in why else ""
+        return f"IPOPT refused them when solving: {why}{hint}"
 
     def restoration(self, stats: dict, log_path: str | None, offset: int) -> int:
         try:

@@ -101,6 +101,13 @@ class NLPBackend:
         None when the solver does not report them."""
         return None
 
+    def refused(self, raw: str, opts: dict, log_path: str | None, offset: int) -> str | None:
+        """Why the plug-in refused its options when it solved (None: it did
+        not). For options a plug-in checks only then (IPOPT loads a linear
+        solver's library at its first solve); the engine raises it as a
+        :class:`~belief_nlp.errors.ValidationError` of ``solver_options``."""
+        return None
+
     def log_file(self) -> str | None:
         """A log file the solver writes (None: no log)."""
         return None

@@ -25,7 +25,9 @@ the answer when it converged and the point is exactly safe; otherwise the
 best exactly safe recorded iterate is (the driver's rule).
 
 History: one record per solver iteration (stages and restarts continue the
-count) with its cost parts; ``accepted`` = satisfies the NLP's constraints to
+numbering; IPOPT calls back once more than it counts when it enters its
+restoration phase, so its ``iter_count`` can be below the records) with
+its cost parts; ``accepted`` = satisfies the NLP's constraints to
 1e-6; ``min_margin`` = the smallest NLP margin; ``kalman_gap`` = the largest
 Kalman-equality residual. Stats: ``attempts`` (formulation, return status,
 iterations, restoration iterations, CPU and wall seconds), ``iter_count``,
@@ -180,8 +182,11 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         except RuntimeError:          # some plug-ins have no stats after a failure
             st = {}
         raw = _STOPS[recorder.stop_reason] if recorder.stop_reason else backend.return_status(st)
+        why = backend.refused(raw, opts, recorder.log_path, log_at)
+        if why:
+            raise ValidationError("solver_options", why)
         stage.status = raw
-        n_it = int(st.get("iter_count", max(recorder.calls - 1, 0)))
+        n_it = _iterations(st, recorder, backend)
         stage.attempts.append({"formulation": formulation, "return_status": raw, "iter_count": n_it,
                                "restoration": backend.restoration(st, recorder.log_path, log_at),
                                "wall_time": time.perf_counter() - t_solve,
@@ -203,6 +208,22 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         log.info("%s %s after %d iterations; restarting from %s", backend.name, raw, stage.used, stage.best[2])
         z_start = stage.best[1]
     return stage
+
+
+def _iterations(stats: dict, recorder: Recorder, backend: NLPBackend) -> int:
+    """The solver's iteration count of the last solve. A solver that stopped
+    before its first iteration can report an uninitialised count (IPOPT
+    through CasADi after Invalid_Option: 1,826,456,736, -103,725,968 or 89
+    measured); a plug-in that calls back is called once per iteration, so
+    a count its callbacks cannot account for is replaced by theirs."""
+    counted = max(recorder.calls - 1, 0)
+    try:
+        n = int(stats.get("iter_count", counted))
+    except (TypeError, ValueError):
+        return counted
+    if backend.calls_back and not 0 <= n <= recorder.calls:
+        return counted
+    return max(n, 0)
 
 
 def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str = "logchol", floor: float = 1e-2,
@@ -237,7 +258,8 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         second = _solve_stage(problem, backend, _Stage(), formulation="cholesky", floor=floor, opts=polish_opts,
                               bounds=lambda nlp, lay: nlp.without_sensing(lay, floor), start=first.answer[1],
                               max_iter=min(int(polish), max_iter - first.used), restarts=0,
-                              offset=first.used, duals=first.duals if backend.warm_duals else None, **common)
+                              offset=problem.iterations, duals=first.duals if backend.warm_duals else None,
+                              **common)
         stages.append(second)
     if bar is not None:
         bar.close()

@@ -55,7 +55,7 @@ def _check_result(res: SmoothResult, sc, name: str, max_iter: int | None = None)
     h = res.history
     _check(len(h) >= 1 and h[0].iteration == 0 and h[0].solver_status == "warm_start", name,
            "history[0] is the warm start")
-    _check(res.nit == len(h) - 1, name, "nit counts the history records after the warm start")
+    _check(res.nit == h[-1].iteration, name, "nit is the last history record's iteration number")
     names = {f.name: f.type for f in fields(IterationRecord)}
     for r in h:
         _check(isinstance(r, IterationRecord), name, "history holds IterationRecords")

@@ -322,6 +322,12 @@ class SmoothingProblem:
         return None
 
     # ----------------------------------------------------------- history
+    @property
+    def iterations(self) -> int:
+        """Iterations recorded so far: the last record's number (a solver
+        that reports only the end of each solve leaves gaps in the numbering)."""
+        return self.history[-1].iteration if self.history else 0
+
     def record(self, rec: IterationRecord, point: Layout | None = None) -> bool:
         """Append one iteration; keep ``point`` when the record is accepted
         (an exactly safe candidate for the answer). Returns True when the

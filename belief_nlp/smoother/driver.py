@@ -395,7 +395,7 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
     if problem.keep_iterates:
         iterates = [model.to_path(problem.start)] + [model.to_path(z) for _, z in sorted(problem.points.items())]
     hist = problem.history
-    nit = len(hist) - 1
+    nit = problem.iterations
     if status == "max_iter":
         # say the limit and what one iteration is ("after N iterations" alone
         # reads as a failure, and N may be below the limit: module doc of nlp_engine)

@@ -142,7 +142,9 @@ class SmoothResult:
     nit : int
         Iterations performed (accepted or not).
     history : list of IterationRecord
-        One record per iteration, index 0 the warm start.
+        One record per iteration, index 0 the warm start (a solver that
+        reports only where each solve ended, fatrop, has one record per
+        solve, numbered by its iteration count).
     method : str
         The method that answered (``"auto:ipopt+ccp"``, ``"auto:ccp"``, ``"ccp"``, ...).
     solver : str
