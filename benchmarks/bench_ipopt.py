@@ -85,6 +85,12 @@ INERTIA_VARIANTS = {
     "dec 0.1, first increase x10": dict(solver_options={"perturb_dec_fact": 0.1, "perturb_inc_fact_first": 10.0}),
     "dec 0.1, first increase x10, kappa_d 0": dict(solver_options={"perturb_dec_fact": 0.1,
                                                                    "perturb_inc_fact_first": 10.0, "kappa_d": 0.0}),
+    # session 12: every corrected iteration's first trial (delta_w / 3) failed
+    # the inertia test (61 of 61, K = 20 seed 0); a smaller decrease tries
+    # closer to the delta_w that worked
+    "dec 0.5": dict(solver_options={"perturb_dec_fact": 0.5}),
+    "dec 0.6": dict(solver_options={"perturb_dec_fact": 0.6}),
+    "dec 0.75": dict(solver_options={"perturb_dec_fact": 0.75}),
 }
 
 #: the polish started from the first stage's multipliers (the default since
