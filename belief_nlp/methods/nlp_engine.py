@@ -245,24 +245,26 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     bar = problem.progress_bar(backend.name)
     common = dict(margin=margin, regularisation=regularisation, candidates=candidates, cache=cache, bar=bar,
                   stall=stall)
-    first = _solve_stage(problem, backend, _Stage(), formulation=formulation, floor=floor, opts=opts,
-                         start=problem.start, max_iter=max_iter, restarts=restarts, offset=0, scale=scale_means,
-                         **common)
-    stages = [first]
-    if formulation == "logchol" and polish and first.answer is not None and first.used < max_iter \
-            and not problem.out_of_time() and not problem.stop_requested:
-        # the floored answer senses >= floor^2 in every direction: switch the
-        # directions held at the floor off and free the rest on the exact
-        # Cholesky NLP (docs/numerics.md, "IPOPT iterations")
-        polish_opts = backend.options(problem.solver_options, problem.tol, "polish")
-        second = _solve_stage(problem, backend, _Stage(), formulation="cholesky", floor=floor, opts=polish_opts,
-                              bounds=lambda nlp, lay: nlp.without_sensing(lay, floor), start=first.answer[1],
-                              max_iter=min(int(polish), max_iter - first.used), restarts=0,
-                              offset=problem.iterations, duals=first.duals if backend.warm_duals else None,
-                              **common)
-        stages.append(second)
-    if bar is not None:
-        bar.close()
+    try:
+        first = _solve_stage(problem, backend, _Stage(), formulation=formulation, floor=floor, opts=opts,
+                             start=problem.start, max_iter=max_iter, restarts=restarts, offset=problem.iterations,
+                             scale=scale_means, **common)
+        stages = [first]
+        if formulation == "logchol" and polish and first.answer is not None and first.used < max_iter \
+                and not problem.out_of_time() and not problem.stop_requested:
+            # the floored answer senses >= floor^2 in every direction: switch the
+            # directions held at the floor off and free the rest on the exact
+            # Cholesky NLP (docs/numerics.md, "IPOPT iterations")
+            polish_opts = backend.options(problem.solver_options, problem.tol, "polish")
+            second = _solve_stage(problem, backend, _Stage(), formulation="cholesky", floor=floor, opts=polish_opts,
+                                  bounds=lambda nlp, lay: nlp.without_sensing(lay, floor), start=first.answer[1],
+                                  max_iter=min(int(polish), max_iter - first.used), restarts=0,
+                                  offset=problem.iterations, duals=first.duals if backend.warm_duals else None,
+                                  **common)
+            stages.append(second)
+    finally:                  # also when a solver refused its options (ValidationError)
+        if bar is not None:
+            bar.close()
     return _outcome(problem, backend, stages, max_iter)
 
 
