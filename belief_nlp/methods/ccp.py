@@ -65,6 +65,7 @@ CHI2_MARGIN = DEFAULT_POLICY.conic      # every collision/containment row of the
 RHO_BAND = 100.0      # adapted split weights stay within this factor of the first step's (_adapt_rho)
 ACTIVE_FACTOR = 3.0   # the active-set step keeps the pairs whose exact squared distance is below this x chi2
 ACTIVE_ROUNDS = 3      # solves of the active-set step, each adding the pairs its answer came near
+HOLD_ACTIVE = True     # a step starts from the pairs the previous step's active set ended with
 PROXIMAL = 1e-4       # weight of the cascade's proximal step (scaled units; docs/numerics.md, "CCP solver cascade")
 
 def compiled_step(model: BeliefModel, solver: str = "CLARABEL", cache_dir: str | Path | bool | None = None,
@@ -246,6 +247,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         cascade = LazyCascade([("CLARABEL", "active set", lib), ("CLARABEL", "full step", lib)],
                               lambda: solver_cascade(solver, problem.solver_options, budget=budget))
     prox: dict = {}            # the proximal step: compiled on first use; not with a hook's own constraints
+    held: dict = {"keep": None}
 
     def special(base: Layout, rho_s_: np.ndarray, rho_e_: np.ndarray) -> dict[str, Callable]:
         def proximal(opts: dict, time_left: float | None):
@@ -263,6 +265,8 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
             # constraint generation: pairs the answer comes near join the step,
             # which is solved again (at most ACTIVE_ROUNDS times; the exact check decides)
             keep = active_pairs(model, base, problem.hazards_scaled)
+            if HOLD_ACTIVE and held["keep"] is not None:   # the pairs the last step ended with start this one
+                keep = keep | held["keep"]
             t_all, n_all = 0.0, 0
             for _ in range(ACTIVE_ROUNDS):
                 status, zv, t, n = conic.solve(base, rho_s_, rho_e_, keep, opts, problem.time_left())
@@ -277,6 +281,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
                     break
                 keep = keep | near
             stats["active_pairs"].append(int(keep.sum()))
+            held["keep"] = keep
             return _checked(status, zv, t_all, n_all, step)
 
         def full(opts: dict, time_left: float | None):
