@@ -279,3 +279,30 @@ def test_other_base_exceptions_are_not_swallowed(case, monkeypatch):
     sc, path, model, prob = case
     with pytest.raises(KeyboardInterrupt):
         bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=3)
+
+
+def test_a_run_on_the_active_set_step_never_imports_cvxpy(tmp_path):
+    """The default CCP run is answered by the active-set step (Clarabel's own
+    API): checking the default solver and running the steps import no CVXPY
+    (its import was ~0.35 s of a process's first ccp call). A solver CVXPY
+    does not have is still refused by name."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import belief_nlp as bn\n"
+        "sc = bn.load_scenario('paper-multi')\n"
+        "path = bn.plan(sc, n_nodes=200, seed=0, noise='per_step').path\n"
+        "res = bn.smooth(sc, path, method='ccp', K=8, alpha=1.0, max_iter=3)\n"
+        "print(res.safe, all('active set' in s['solver'] for s in res.stats['steps']), 'cvxpy' in sys.modules)\n"
+        "try:\n"
+        "    bn.smooth(sc, path, method='ccp', K=8, solver='NOSUCH')\n"
+        "except bn.errors.ValidationError as exc:\n"
+        "    print(exc.field)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    first, second = out.stdout.strip().splitlines()[-2:]
+    assert first == "True True False"
+    assert second == "solver"
