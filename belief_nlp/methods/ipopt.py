@@ -101,13 +101,7 @@ class IpoptBackend(NLPBackend):
         # check and fails at the solve with Invalid_Option; the log says why
         if raw != "Invalid_Option":
             return None
-        try:
-            with open(log_path, "rb") as fh:
-                fh.seek(offset)
-                text = fh.read().decode(errors="replace")
-        except (OSError, TypeError):
-            text = ""
-        found = _REASON.search(text)
+        found = _REASON.search(_log_since(log_path, offset).decode(errors="replace"))
         why = found.group(1).strip() if found else "Invalid_Option at its first iteration"
         ls = opts.get("linear_solver")
         hint = f" (linear_solver {ls!r}: its library is not installed here; IPOPT's default is 'mumps')" \
@@ -115,12 +109,17 @@ class IpoptBackend(NLPBackend):
         return f"IPOPT refused them when solving: {why}{hint}"
 
     def restoration(self, stats: dict, log_path: str | None, offset: int) -> int:
-        try:
-            with open(log_path, "rb") as fh:
-                fh.seek(offset)
-                return len(_RESTO.findall(fh.read()))
-        except (OSError, TypeError):
-            return 0
+        return len(_RESTO.findall(_log_since(log_path, offset)))
+
+
+def _log_since(log_path: str | None, offset: int) -> bytes:
+    """What IPOPT wrote to its log from byte ``offset`` on (the last solve's part); empty without a log."""
+    try:
+        with open(log_path, "rb") as fh:
+            fh.seek(offset)
+            return fh.read()
+    except (OSError, TypeError):
+        return b""
 
 
 IPOPT = IpoptBackend()

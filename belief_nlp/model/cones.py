@@ -31,7 +31,7 @@ class ConeFamily:
     owner: np.ndarray | None = None
 
 
-_PADDED: list = [None, None]     # (z, vertcat(z, 0)) of the last call: a step's build picks from one z
+_PADDED: tuple = (None, None)    # (z, vertcat(z, 0)) of the last call: a step's build picks from one z
 
 
 def _pick(z: ca.SX, idx: np.ndarray) -> ca.SX:
@@ -40,6 +40,9 @@ def _pick(z: ca.SX, idx: np.ndarray) -> ca.SX:
     idx = np.atleast_2d(idx)
     n = int(z.numel())
     flat = np.where(idx < 0, n, idx).ravel(order="F")
-    if _PADDED[0] is not z:          # concatenating z anew for each of a build's ~120 picks was 0.06 s
-        _PADDED[:] = [z, ca.vertcat(z, 0)]
-    return ca.reshape(_PADDED[1][flat.tolist()], *idx.shape)
+    global _PADDED
+    last, padded = _PADDED           # read once: another thread's build may replace the pair meanwhile
+    if last is not z:                # concatenating z anew for each of a build's ~120 picks was 0.06 s
+        padded = ca.vertcat(z, 0)
+        _PADDED = (z, padded)
+    return ca.reshape(padded[flat.tolist()], *idx.shape)
