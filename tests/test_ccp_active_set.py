@@ -165,7 +165,11 @@ def test_a_refused_active_set_answer_sends_the_step_to_the_full_problem(case, mo
     steps = r.stats["steps"]
     assert all(s["attempts"][0]["settings"] == "active set" for s in steps)
     assert any(str(s["solver"]) == "CLARABEL (full step)" for s in steps)
-    assert r.stats["compile"] == "not needed"
+    # CVXPY is compiled only for a step whose full-step answer was not taken
+    # (Clarabel's "almost solved" on a marginal step is not ours to assert away)
+    fell_through = [s for s in steps if not str(s["solver"]).startswith("CLARABEL (active set")
+                    and str(s["solver"]) != "CLARABEL (full step)"]
+    assert (r.stats["compile"] == "not needed") == (not fell_through)
     costs = [h.cost for h in r.history if h.accepted]
     assert all(b <= a * (1 + 1e-12) for a, b in zip(costs, costs[1:]))
 
@@ -189,8 +193,12 @@ def test_an_inaccurate_active_set_answer_waits_for_the_full_step_on_the_same_dat
     full = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=100, tol=1e-5, accelerate=False, active_set=False)
     assert r.status == full.status == "converged", r.message
     assert bn.verify(sc, r.path).safe
-    assert r.stats["compile"] == "not needed"
-    assert all(str(s["solver"]) == "CLARABEL (full step)" for s in r.stats["steps"])
+    # every step is answered on the active-set step's own data (the full step),
+    # unless that answer too was inaccurate: only then is CVXPY compiled
+    fell_through = [s for s in r.stats["steps"] if str(s["solver"]) != "CLARABEL (full step)"]
+    assert all(any(a["settings"] == "full step" and a["status"] != "optimal" for a in s["attempts"])
+               for s in fell_through)
+    assert (r.stats["compile"] == "not needed") == (not fell_through)
     assert r.cost == pytest.approx(full.cost, rel=1e-6) and r.nit == full.nit
 
 

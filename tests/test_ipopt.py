@@ -88,7 +88,7 @@ def test_logchol_floor_lifts_sensing_safely(hand_start):
     z = model.tighten(model.from_path(ws.path, ws.lam))
     nlp = build_nlp(model, "logchol", floor=1e-2)
     zv = nlp.pack(z)
-    col, tgt = (np.asarray(v).ravel() for v in nlp.margins(zv))
+    col, tgt = nlp.margin_values(zv)
     start, end = model.transition_margins(z)
     both = np.stack([start, end], axis=-1).ravel()
     assert np.all(col >= both - 1e-9) and np.any(col > both + 1e-6)
@@ -118,7 +118,7 @@ def test_nlp_uses_the_model_margins(hand_start):
         # start's ~1e-6 keeps the point (the default floor is tested below)
         nlp = build_nlp(model, formulation, floor=1e-9)
         zv = nlp.pack(z)
-        col, tgt = (np.asarray(v).ravel() for v in nlp.margins(zv))
+        col, tgt = nlp.margin_values(zv)
         start, end = model.transition_margins(z)
         both = np.stack([start, end], axis=-1).ravel()          # ordered (k, j, start/end)
         np.testing.assert_allclose(col, both, rtol=1e-8, atol=1e-8)
@@ -310,7 +310,7 @@ def test_polish_on_shared_derivatives_equals_a_fresh_cholesky_solver(small_start
     # the logchol view of the same graph is the exp-diagonal NLP: its rows at
     # the packed warm start are the model's margins (as for a fresh build)
     back = log.variant("logchol", 1e-9)
-    col, _ = (np.asarray(v).ravel() for v in back.margins(back.pack(z)))
+    col, _ = back.margin_values(back.pack(z))
     start, end = model.transition_margins(z)
     np.testing.assert_allclose(col, np.stack([start, end], axis=-1).ravel(), rtol=1e-8, atol=1e-8)
 

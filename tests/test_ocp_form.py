@@ -137,7 +137,8 @@ def test_a_variable_added_later_lands_in_its_step(small):
     f = nlp.f + 1e-3 * ca.sumsqr(tau)
     z_ext, n0 = ca.vertcat(nlp.z, tau), nlp.z.shape[0]
     parts = ca.Function("parts", [z_ext, nlp.p], nlp.parts(z_ext[:n0], nlp.p))
-    margins = ca.Function("margins", [z_ext], nlp.margins(z_ext[:n0]))
+    start = ca.SX.sym("start", nlp.margins.size1_in(1))
+    margins = ca.Function("margins", [z_ext, start], nlp.margins(z_ext[:n0], start))
     ext = replace(nlp, z=z_ext, g=g, f=f, parts=parts, margins=margins, lbz=np.r_[nlp.lbz, -np.full(K, np.inf)],
                   ubz=np.r_[nlp.ubz, np.full(K, np.inf)], lbg=np.r_[nlp.lbg, np.full(K, -1.0)],
                   ubg=np.r_[nlp.ubg, np.full(K, np.inf)])

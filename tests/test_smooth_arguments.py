@@ -63,11 +63,14 @@ def test_numpy_integers_are_integers(small):
 @pytest.mark.parametrize("fault", ["zeros", "huge", "short", "nan"])
 def test_a_nonsense_solver_answer_is_a_failed_subproblem(small, monkeypatch, fault):
     """A solver that reports success with zeros, 1e300, a wrong-length or a
-    NaN vector: the run ends with a typed status, the answer is verified and
-    never above the warm start."""
+    NaN vector: every such answer is refused (never a step of the run), the
+    run ends unsuccessful with a typed status, the answer is verified and
+    never above the warm start. (Whether the run ends by the cascade's
+    failure or at max_iter depends on when the honest proximal entry, which
+    does not go through the lying solve, fails: not asserted.)"""
     sc, path = small
     real = ccp_cascade._solve
-    calls = []
+    calls, told = [], []
 
     def lying(step, *args, **kwargs):
         status, zv, t, n = real(step, *args, **kwargs)
@@ -76,11 +79,18 @@ def test_a_nonsense_solver_answer_is_a_failed_subproblem(small, monkeypatch, fau
             return status, zv, t, n
         bad = {"zeros": np.zeros_like(zv), "huge": np.full_like(zv, 1e300), "short": zv[:-3],
                "nan": np.where(np.arange(zv.size) % 7 == 0, np.nan, zv)}[fault]
+        told.append(1)
         return "optimal", bad, t, n
 
     monkeypatch.setattr(ccp_cascade, "_solve", lambda *a, **k: ccp_cascade._checked(*lying(*a, **k), a[0]))
     res = bn.smooth(sc, path, method="ccp", alpha=1.0, max_iter=6, active_set=False)     # CVXPY steps only
-    assert res.status in ("solver_failed", "infeasible_iterate") and not res.success
+    assert res.status in ("solver_failed", "infeasible_iterate", "max_iter") and not res.success
+    attempts = [a for step in res.stats["steps"] for a in step["attempts"]]
+    lies = [a for a in attempts if a["status"].endswith(("(degenerate answer)", "(unusable answer)"))]
+    assert told and len(lies) == len(told)                                   # every lie was refused
+    for step in res.stats["steps"]:                                          # and none was taken
+        taken = [a for a in step["attempts"] if f"{a['solver']} ({a['settings']})" == step["solver"]]
+        assert step["solver"] is None or taken[-1]["status"] in ("optimal", "optimal_inaccurate")
     assert res.safe and res.cost <= res.initial_cost
     assert bn.verify(sc, res.path, certificates=res.certificates).proof == "certificates+sampling"
 

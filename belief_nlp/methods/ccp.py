@@ -80,12 +80,12 @@ def compiled_step(model: BeliefModel, solver: str = "CLARABEL", cache_dir: str |
     hit = MEMORY.get(key)
     disk = _disk(cache_dir)
     if hit is not None:
-        return _for_alpha(hit, model), "memory", disk
+        return _for_model(hit, model), "memory", disk
     if disk is not None:
         hit = disk.load(key)
         if isinstance(hit, CompiledProblem):
             MEMORY.put(key, hit)
-            return _for_alpha(hit, model), "disk", disk
+            return _for_model(hit, model), "disk", disk
     form = model.convex_form if chi2_margin == CHI2_MARGIN and not proximal else None
     if form is None:
         from ..model.doc import convex_form
@@ -119,13 +119,14 @@ def conic_step_of(model: BeliefModel, cache_dir: str | Path | bool | None = None
             if disk is not None:
                 disk.save(key, hit, kind="conic")
         MEMORY.put(key, hit)
-    return _for_alpha(hit, model)
+    return _for_model(hit, model)
 
 
-def _for_alpha(step, model: BeliefModel):
-    """A cached step (compiled for any alpha: alpha is its last parameter) as
-    ``model``'s: the same compiled problem, a layout with ``model``'s alpha."""
-    layout = step.layout.for_alpha(model.data.alpha)
+def _for_model(step, model: BeliefModel):
+    """A cached step (compiled for any alpha and start belief: both are its
+    parameters) as ``model``'s: the same compiled problem, a layout with
+    ``model``'s data."""
+    layout = step.layout.for_data(model.data)
     return step if layout is step.layout else replace(step, layout=layout)
 
 

@@ -80,7 +80,8 @@ def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formul
                       f"{backend.plugin}:{formulation}:{regularisation}:{floor_key}{scale_key}:{sorted(opts.items())!r}")
     entry = _CACHE.get(key) if cache else None
     if entry is not None:
-        return (*entry, "memory")
+        # the key leaves out the start belief (a parameter): read this model's
+        return entry[0].for_model(problem.model), entry[1], entry[2], "memory"
     view, shared = _nlp(problem, formulation, margin, regularisation, floor, cache)
     nlp = backend.form(view)
     if scale != 1:
@@ -112,7 +113,7 @@ def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formul
             nlp_compiled.start(*fill)
     if cache:
         _CACHE.put(key, (nlp, solver, recorder))
-    return nlp, solver, recorder, "built" if not given else source
+    return nlp.for_model(problem.model), solver, recorder, "built" if not given else source
 
 
 def _given_derivatives(nlp: NLPProblem, backend: NLPBackend, shared: dict, slot: str,

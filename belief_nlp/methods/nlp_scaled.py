@@ -43,11 +43,12 @@ def scaled(nlp: NLPProblem, scale: float) -> NLPProblem:
     f, g = ca.substitute([nlp.f, nlp.g], [nlp.z], [Dy])
     parts = ca.Function("parts", [y, nlp.p], nlp.parts(Dy, nlp.p), ["z", "p"],
                         ["control", "information", "regulariser"])
-    margins = ca.Function("margins", [y], nlp.margins(Dy), ["z"], ["collision", "target"])
-    pack, unpack, without = nlp.pack, nlp.unpack, nlp.without_sensing
+    start = ca.SX.sym("start", nlp.margins.size1_in(1))
+    margins = ca.Function("margins", [y, start], nlp.margins(Dy, start), ["z", "start"], ["collision", "target"])
+    pack, unpack_with, without = nlp.pack, nlp.unpack_with, nlp.without_sensing
     out = dataclasses.replace(nlp, z=y, f=f, g=g, lbz=nlp.lbz / D, ubz=nlp.ubz / D, parts=parts, margins=margins,
                               pack=lambda lay: pack(lay) / D,
-                              unpack=lambda yv: unpack(np.asarray(yv, float).ravel() * D),
+                              unpack_with=lambda yv, model: unpack_with(np.asarray(yv, float).ravel() * D, model),
                               info={**nlp.info, "variable_scale": D}, _view=None, graph=None)
 
     def without_sensing(lay, floor: float, slack: float = 0.1):

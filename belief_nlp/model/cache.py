@@ -48,8 +48,9 @@ __all__ = ["problem_key", "MemoryCache", "DiskCache", "default_cache_dir", "MEMO
 log = logging.getLogger("belief_nlp.cache")
 
 # bump when the model's structure changes in a way the versions do not show
-# (5: alpha became a parameter of every form and left the key; 6: entries compressed)
-MODEL_REVISION = 6
+# (5: alpha became a parameter of every form and left the key; 6: entries compressed;
+# 7: the start belief became a parameter of every form and left the key)
+MODEL_REVISION = 7
 
 #: environment variable that switches the disk cache on for a process: a
 #: folder, or "1" for the user's cache folder (:func:`default_cache_dir`)
@@ -62,9 +63,11 @@ MAX_BYTES = 512 * 2**20
 
 
 def problem_key(D: ProblemData, chi2_margin: float, solver: str, proximal: float = 0.0) -> str:
-    """Hash of everything that shapes the compiled problem. alpha is not part
-    of it: every form takes alpha as a parameter (the NLP's ``p``, the CCP
-    step's last parameter), so one compiled problem serves every alpha."""
+    """Hash of everything that shapes the compiled problem. alpha and the
+    start belief (x0, P0) are not part of it: every form takes them as
+    parameters (the NLP's ``p``, the CCP step's), so one compiled problem
+    serves every alpha and every start of a (scenario, K): a re-plan from a
+    new belief builds nothing."""
     import casadi
 
     from .._version import __version__
@@ -75,7 +78,7 @@ def problem_key(D: ProblemData, chi2_margin: float, solver: str, proximal: float
                  *((repr(proximal),) if proximal else ()),
                  D.sigma, D.chi2, D.chi2_target, D.budget, D.continuous, D.K, D.d, D.hazard_names):
         h.update(repr(part).encode())
-    for arr in (D.x0, D.P0, D.W, D.A, D.b, D.face_mask, D.At, D.bt):
+    for arr in (D.W, D.A, D.b, D.face_mask, D.At, D.bt):
         a = np.ascontiguousarray(arr)
         h.update(str(a.dtype).encode() + str(a.shape).encode())
         h.update(a.tobytes())

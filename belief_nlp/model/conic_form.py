@@ -87,6 +87,10 @@ class ConicStep:
         vals = np.concatenate([self.a_const, self.a_weight * coef])
         A = sp.csc_matrix((np.bincount(self.a_slot, vals, minlength=n_slots), self.A_indices, self.A_indptr),
                           shape=self.A_shape)
+        # entries whose coefficient is 0 at this point (certificates at 0, a start
+        # factor's zeros) leave the pattern: Clarabel's KKT system then depends on
+        # the values only, not on which entries the symbolic form could fill
+        A.eliminate_zeros()
         bvals = np.concatenate([self.b_const, self.b_weight * off])
         b = np.bincount(self.b_row, bvals, minlength=self.A_shape[0])
         q = self.q0.copy()

@@ -49,7 +49,7 @@ CasADi function.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -163,6 +163,14 @@ def _pair_function(d: int, F: int, n_quad: int = 0) -> ca.Function:
                        [ca.vec(h1), _rsoc(-h2_lin, ca.vertcat(r * dv - (x - xt) / r, q))])
 
 
+def step_start_values(D: ProblemData) -> np.ndarray:
+    """The start belief of ``D`` as the CCP step's parameters: x0, Q1,
+    L0 / eps0, eps0^2 (:func:`start_factor`) and T2 (matrices column-major)."""
+    L0, eps0 = start_factor(D.P0)
+    return np.concatenate([D.x0, D.Q1.ravel(order="F"), (L0 / eps0).ravel(order="F"), [eps0**2],
+                           D.T2.ravel(order="F")])
+
+
 def start_factor(P0: np.ndarray) -> tuple[np.ndarray, float]:
     """(L0, eps0): P0 = L0 L0^T (P0 may be singular) and eps0 = ||L0||_2 (1 when P0 = 0)."""
     w0, V0 = np.linalg.eigh(P0)
@@ -192,13 +200,15 @@ class StepLayout:
                  np.asarray(rho_start, float).ravel(), np.asarray(rho_end, float).ravel()]
         if self.blocks.ell is not None:
             parts.append(np.asarray(point.tau, float).ravel())
-        parts.append([self.data.alpha])     # last: one compiled step serves every alpha (for_alpha)
+        parts.append(step_start_values(self.data))
+        parts.append([self.data.alpha])     # last: one compiled step serves every alpha (for_data)
         return np.concatenate(parts)
 
-    def for_alpha(self, alpha: float) -> "StepLayout":
-        """This layout with the data of another alpha: alpha is the last
-        parameter (:meth:`params`), not part of the compiled problem."""
-        return self if alpha == self.data.alpha else StepLayout(replace(self.data, alpha=float(alpha)), self.blocks)
+    def for_data(self, data: ProblemData) -> "StepLayout":
+        """This layout with ``data``, which may differ from the layout's only in
+        what the step takes as parameters (:meth:`params`): alpha and the start
+        belief. The compiled problem stays."""
+        return self if data is self.data else StepLayout(data, self.blocks)
 
     def point_vector(self, point: Layout) -> np.ndarray:
         """z of ``point`` itself (dx = 0) with every auxiliary at its tightest
@@ -324,7 +334,10 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7, proximal: float = 0.0
     sizes = [(K + 1) * d, (K + 1) * d * d, (K + 1) * d * d, K * J * F, K * J, K * J]
     if B.ell is not None:
         sizes.append(K * J)                           # the point's levels tau~ (budget mode)
-    sizes.append(1)                                   # alpha: a parameter, so one compiled step serves every alpha
+    # the start belief (step_start_values) and alpha: parameters, so one compiled
+    # step serves every start and alpha of a (scenario, K)
+    sizes.append(step_start_values(D).size)
+    sizes.append(1)
     p = ca.SX.sym("p", int(sum(sizes)))
     parts = ca.vertsplit(p, list(np.concatenate([[0], np.cumsum(sizes)]).astype(int)))
     xt = ca.reshape(parts[0], d, K + 1)               # column k = x~_k (row-major ravel -> transposed)
@@ -341,11 +354,14 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7, proximal: float = 0.0
     else:
         Lev, Quad = ca.DM.ones(K, J) * chi2, []
 
-    X = [ca.DM(D.x0)] + [xt[:, k] + _pick(z, B.x[k][:, None]) for k in range(1, K + 1)]
-    Q = [None, ca.DM(D.Q1)] + [_pick(z, B.Q[k]) for k in range(2, K + 1)]
+    start = ca.vertsplit(parts[-2], list(np.cumsum([0, d, d * d, d * d, 1, d * d])))
+    x0, Q1, L0s, eps0_sq, T2 = start[0], ca.reshape(start[1], d, d), ca.reshape(start[2], d, d), start[3], \
+        ca.reshape(start[4], d, d)
+    X = [x0] + [xt[:, k] + _pick(z, B.x[k][:, None]) for k in range(1, K + 1)]
+    Q = [None, Q1] + [_pick(z, B.Q[k]) for k in range(2, K + 1)]
     S = [None] + [_pick(z, B.S[k]) for k in range(1, K + 1)]
     Y = [None] + [Q[k] + S[k] for k in range(1, K + 1)]
-    Yt = [None] + [(ca.DM(D.Q1) if k == 1 else Qt[k]) + St[k] for k in range(1, K + 1)]
+    Yt = [None] + [(Q1 if k == 1 else Qt[k]) + St[k] for k in range(1, K + 1)]
     Lam = [[_pick(z, B.lam[0, j][:, None]) for j in range(J)]]      # transition 1 (the exact start end)
 
     # ------------------------------------------------------------ objective
@@ -408,20 +424,20 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7, proximal: float = 0.0
         ky = kk if end else kk - 1                     # information matrix at the end: Q_k or Y_{k-1}
         if D.continuous:                               # both ends: T_k
             Yv = _pick(z, np.concatenate(list(B.T[kk]), axis=1))
-            consts = {1: D.Q1, 2: D.T2}
-            Yc = np.concatenate([consts.get(int(k), np.zeros((d, d))) for k in kk], axis=1)
+            consts = {1: Q1, 2: T2}
+            Yc = ca.horzcat(*[consts.get(int(k), ca.SX(d, d)) for k in kk])
         else:
             Yv = _pick(z, np.concatenate(list(B.Q[ky]), axis=1))
             if not end:
                 Yv = Yv + _pick(z, np.concatenate(list(B.S[ky]), axis=1))
-            Yc = np.concatenate([D.Q1 if k == 1 else np.zeros((d, d)) for k in ky], axis=1)
+            Yc = ca.horzcat(*[Q1 if k == 1 else ca.SX(d, d) for k in ky])
         A = ca.DM(np.concatenate(list(D.A[jj]), axis=1))
         b = ca.DM(D.b[jj].T)
         r = ca.sqrt((rho_e if end else rho_s)[((kk - 1) * J + jj).tolist()]).T
         pick = ((kk - 1) * J + jj).tolist()
         lev = ca.vec(Lev.T)[pick].T
         quad = ca.vertcat(*[ca.vec(qq.T)[pick].T for qq in Quad]) if Quad else ca.SX(0, nb)
-        h1, h2 = pair.map(nb)(lam, lt, R, x, xt[:, kx.tolist()], Yv + ca.DM(Yc), A, b, r, lev, quad)
+        h1, h2 = pair.map(nb)(lam, lt, R, x, xt[:, kx.tolist()], Yv + Yc, A, b, r, lev, quad)
         owner = (kk - 1) * J + jj
         fam.append(ConeFamily(f"h1_{name}", "psd", d + 1, nb, ca.vec(h1), owner))
         fam.append(ConeFamily(f"h2_{name}", "soc", d + 2 + len(Quad), nb, ca.vec(h2), owner))
@@ -430,15 +446,15 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7, proximal: float = 0.0
     # P0 = L0 L0^T and eps0 = ||L0||: the LMI's entries are O(1) however small P0 is (the
     # paper's 1e-9 I; a single cone holding v^T P0 v and the O(10) linear part had rows
     # 1.9e4 times apart, docs/numerics.md "Conditioning of the CCP step")
-    L0, eps0 = start_factor(D.P0)
+    # (L0 / eps0 and eps0^2 are parameters: step_start_values)
     h2_first, h1_first = [], []
     for j in range(0 if D.continuous else J):       # (continuous: transition 1's start is a generic pair)
         A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
         lam = Lam[0][j]
         R0 = z[int(B.R0[j])]
-        w = terms.bilinear(lam, X[0], A, b) - Lev[0, j] - eps0**2 * R0
+        w = terms.bilinear(lam, X[0], A, b) - Lev[0, j] - eps0_sq * R0
         h2_first.append(_rsoc(w, ca.vertcat(*[qq[0, j] for qq in Quad])) if Quad else w)
-        h1_first.append(terms.h1_lmi(R0, ca.mtimes(ca.DM(L0 / eps0).T, ca.mtimes(A.T, lam)), ca.DM.eye(d)))
+        h1_first.append(terms.h1_lmi(R0, ca.mtimes(L0s.T, ca.mtimes(A.T, lam)), ca.DM.eye(d)))
     first = np.arange(len(h2_first))                   # pairs (1, j)
     if Quad:
         add("start_h2", "soc", 2 + len(Quad), h2_first, first)

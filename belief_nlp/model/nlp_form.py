@@ -29,6 +29,7 @@ the measured alternatives ("minors", "eliminated"): docs/numerics.md, "IPOPT".
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from functools import cached_property
 from itertools import combinations
@@ -39,7 +40,7 @@ import numpy as np
 
 from ..errors import ValidationError
 from . import terms
-from .data import Layout
+from .data import Layout, ProblemData
 from .evaluate import BeliefModel
 
 __all__ = ["NLPProblem", "build_nlp", "FORMULATIONS"]
@@ -62,14 +63,21 @@ class NLPProblem:
         construction is most of a first call: docs/numerics.md, "Construction cost").
     lbz, ubz, lbg, ubg : bounds (numpy).
     parts : Function (z, p) -> (control [m^2], information [nats], regulariser).
-    margins : Function z -> (collision margins (2 K J,), target margins (N,));
+    margins : Function (z, start) -> (collision margins (2 K J,), target
+        margins (N,)), start the start belief's parameters
+        (:func:`start_values`; :meth:`margin_values` passes the model's);
         collision margins are the certificate values
         -v^T P v + 2 lam^T (A x - b) - chi2 (a lower bound on the squared
         Mahalanobis clearance minus chi2), ordered (k, j, start/end).
-    pack : Layout -> z values; unpack : z values -> Layout (S from its
-        factor; Q as the variables say -- use model.tighten for the Kalman one).
-    anchor : (Layout, alpha=None) -> p values (the point's certificates and
-        alpha; None: the alpha of the model the NLP was built from).
+    pack : Layout -> z values; unpack_with : (z values, model) -> Layout (S
+        from its factor; Q as the variables say -- use model.tighten for the
+        Kalman one); :meth:`unpack` with this NLP's ``model``.
+    anchor_with : (Layout, alpha or None, model) -> p values (the point's
+        certificates, the model's start belief and alpha; None: the model's);
+        :meth:`anchor` with this NLP's ``model``.
+    model : the model whose data the numeric parts read: only its start
+        belief (x0, P0) and alpha may differ from the model the graph was
+        built from, both are parameters (:meth:`for_model`).
     n_collision : number of collision rows at the start of g.
     graph : the symbolic part (a CasADi function of (z, p) and the row
         counts) that rebuilds this NLP's expressions: ``build_nlp(...,
@@ -88,9 +96,10 @@ class NLPProblem:
     parts: ca.Function
     margins: ca.Function
     pack: Callable[[Layout], np.ndarray]
-    unpack: Callable[[np.ndarray], Layout]
-    anchor: Callable[..., np.ndarray]
+    unpack_with: Callable[[np.ndarray, BeliefModel], Layout]
+    anchor_with: Callable[..., np.ndarray]
     n_collision: int
+    model: BeliefModel
     info: dict = field(default_factory=dict)
     _view: Callable[[str, float], "NLPProblem"] | None = field(default=None, repr=False)
     graph: dict | None = field(default=None, repr=False)
@@ -102,6 +111,30 @@ class NLPProblem:
         disk cache's hash of the graph)."""
         return ca.Function("belief_nlp_fg", [self.z, self.p], [self.f, self.g])
 
+    def unpack(self, zv: np.ndarray) -> Layout:
+        """z values -> Layout, with this NLP's model's start belief."""
+        return self.unpack_with(zv, self.model)
+
+    def anchor(self, lay: Layout, alpha: float | None = None) -> np.ndarray:
+        """p values at ``lay``: its certificates (the proximal term's centre),
+        the model's start belief and alpha (None: the model's), the switch."""
+        return self.anchor_with(lay, alpha, self.model)
+
+    def margin_values(self, zv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(collision, target) margins at z values, with the model's start belief."""
+        col, tgt = self.margins(zv, start_values(self.model.data))
+        return np.asarray(col, float).ravel(), np.asarray(tgt, float).ravel()
+
+    def for_model(self, model: BeliefModel) -> "NLPProblem":
+        """This NLP (the same graph, bounds and solver-facing parts) reading
+        ``model``'s start belief and alpha: a model whose data differ only in
+        those (the memory cache's key leaves them out, :func:`.cache.problem_key`)."""
+        if model is self.model:
+            return self
+        out = copy.copy(self)        # keeps a form's own attributes (nlp_scaled's without_sensing)
+        out.model = model
+        return out
+
     def variant(self, formulation: str, floor: float | None = None) -> "NLPProblem":
         """The other member of the "cholesky" / "logchol" pair on the same
         expression graph (the same z, p, f, g objects: a solver's derivative
@@ -110,7 +143,7 @@ class NLPProblem:
         if self._view is None or formulation not in ("cholesky", "logchol"):
             raise ValidationError("formulation", f"the {self.formulation!r} NLP has no {formulation!r} variant "
                                                  f"(only 'cholesky' and 'logchol' share one graph)")
-        return self._view(formulation, self.info["floor"] if floor is None else float(floor))
+        return self._view(formulation, self.info["floor"] if floor is None else float(floor)).for_model(self.model)
 
     def without_sensing(self, lay: Layout, floor: float, slack: float = 0.1) -> tuple[np.ndarray, np.ndarray,
                                                                                     np.ndarray]:
@@ -180,10 +213,13 @@ def _symbolic_graph(model: BeliefModel, formulation: str, margin: float, regular
     Lam = ca.SX.sym("lam", n_lam, K)
     Tau = ca.SX.sym("tau", J, K) if budget else ca.SX(J, 0)       # column k-1 = the levels of transition k
     W = ca.DM(D.W)
-    xs = [ca.DM(D.x0)] + [X[:, k] for k in range(K)]
+    # the start belief is a parameter (start_values), not a constant: a re-plan
+    # from a new belief reuses the graph, its derivatives and the solver
+    x0, P0, Q1, logdet_q1 = _start_symbols(d)
+    xs = [x0] + [X[:, k] for k in range(K)]
 
-    Q: list = [None, ca.DM(D.Q1)]
-    logdet_q: list = [None, float(np.linalg.slogdet(D.Q1)[1])]
+    Q: list = [None, Q1]
+    logdet_q: list = [None, logdet_q1]
     Y: list = [None]
     g_kal, g_psd = [], []
     for k in range(1, K + 1):
@@ -217,10 +253,9 @@ def _symbolic_graph(model: BeliefModel, formulation: str, margin: float, regular
 
     # collision constraints (Theorem 1, common lambda), ordered (k, j, start/end)
     g_col = []
-    P0 = ca.DM(D.P0)
     # continuous-time surrogate: both ends under Sigma_k = Q_{k-1}^-1 + W (Sigma_1 = P0 + W),
     # information T_k (risk.continuous_surrogate)
-    T = [None, ca.DM(D.Q1)] + [_sym_inv(ca.inv(Q[k - 1]) + W) for k in range(2, K + 1)] if D.continuous else None
+    T = [None, Q1] + [_sym_inv(ca.inv(Q[k - 1]) + W) for k in range(2, K + 1)] if D.continuous else None
     AB = [(ca.DM(D.A[j]), ca.DM(D.b[j])) for j in range(J)]       # once per hazard, not per (k, j)
     pads = [ca.SX.zeros(F - nf[j]) for j in range(J)]
     for k in range(1, K + 1):
@@ -244,7 +279,7 @@ def _symbolic_graph(model: BeliefModel, formulation: str, margin: float, regular
     Lam0 = ca.SX.sym("lam0", n_lam, K)
     alpha = ca.SX.sym("alpha")
     reg = 0.5 * regularisation * ca.sumsqr(Lam - Lam0)
-    p = ca.vertcat(ca.vec(Lam0), alpha, switch)
+    p = ca.vertcat(ca.vec(Lam0), x0, ca.vec(P0), ca.vec(Q1), logdet_q1, alpha, switch)
 
     z = ca.veccat(X, Sv, Mv, Lam, Tau)
     g_col_v = ca.vertcat(*g_col)
@@ -262,6 +297,20 @@ def _symbolic_graph(model: BeliefModel, formulation: str, margin: float, regular
     n_col, n_tgt, n_kal, n_psd = len(g_col), len(g_tgt), t * len(g_kal), len(g_psd)
     return {"function": ca.Function("belief_nlp_graph", [z, p], [f, g, control, information, reg, g_col_v, g_tgt_v]),
             "counts": (n_col, n_tgt, n_kal, n_psd, len(g_bud))}
+
+
+def _start_symbols(d: int) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX]:
+    """x0, P0, Q1 = (P0 + W)^-1 and log det Q1 as symbols: the parameters
+    :func:`start_values` gives values."""
+    return (ca.SX.sym("x0", d), ca.SX.sym("P0", d, d), ca.SX.sym("Q1", d, d), ca.SX.sym("logdet_q1"))
+
+
+def start_values(D: ProblemData) -> np.ndarray:
+    """The start belief of ``D`` as the NLP's parameters (x0, P0, Q1, log det
+    Q1; matrices column-major as ``ca.vec``). Q1 and its log-determinant are
+    computed here in numpy, as the constants they replaced were."""
+    return np.concatenate([D.x0, D.P0.ravel(order="F"), D.Q1.ravel(order="F"),
+                           [float(np.linalg.slogdet(D.Q1)[1])]])
 
 
 def _tri_index(d: int) -> list[tuple[int, int]]:
@@ -333,6 +382,8 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
     z, p = graph["function"].sx_in()
     f, g, control, information, reg, g_col_v, g_tgt_v = graph["function"].call([z, p])
     switch = p[p.numel() - 1]
+    n_start = start_values(D).size
+    start = p[n_lam * K:n_lam * K + n_start]          # the start belief's entries of p (start_values)
     n_col, n_tgt, n_kal, n_psd, n_bud = graph["counts"]
     lbg = np.concatenate([np.full(n_col, 0.0 if budget else margin * D.chi2), np.full(n_tgt, margin),
                           np.zeros(n_kal), np.zeros(n_psd), np.full(n_bud, -np.inf)])
@@ -383,9 +434,9 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
                 parts_.append(np.asarray(lay.tau, float).T.ravel(order="F"))
             return np.concatenate(parts_)
 
-        def unpack(zv: np.ndarray) -> Layout:
+        def unpack(zv: np.ndarray, model: BeliefModel) -> Layout:
             zv = np.asarray(zv, float).ravel()
-            x = np.vstack([D.x0[None], zv[:nX].reshape(K, d)])
+            x = np.vstack([model.data.x0[None], zv[:nX].reshape(K, d)])
             Sp = zv[nX:nX + nS].reshape(K, t)
             S = np.zeros((K + 1, d, d))
             for k in range(1, K + 1):
@@ -401,7 +452,7 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
                 else:
                     S[k] = M @ M.T
             Qm = np.zeros((K + 1, d, d))
-            Qm[1] = D.Q1
+            Qm[1] = model.data.Q1
             if lift_q and K > 1:
                 Mp = zv[nX + nS:nX + nS + nM].reshape(K - 1, t)
                 for k in range(2, K + 1):
@@ -430,14 +481,16 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
             lb[nX:nX + nS] = s_lb.ravel(order="F")
         pack, unpack = _packing(formulation, floor)
         on = ca.SX(1.0 if formulation == "logchol" else 0.0)
-        margins = ca.Function("margins", [z], ca.substitute([g_col_v, g_tgt_v], [switch], [on]), ["z"],
-                              ["collision", "target"])
+        margins = ca.Function("margins", [z, start], ca.substitute([g_col_v, g_tgt_v], [switch], [on]),
+                              ["z", "start"], ["collision", "target"])
 
-        def anchor(lay: Layout, alpha: float | None = None) -> np.ndarray:
-            return np.concatenate([lam_values(lay), [D.alpha if alpha is None else float(alpha),
-                                                     1.0 if formulation == "logchol" else 0.0]])
+        def anchor(lay: Layout, alpha: float | None, model: BeliefModel) -> np.ndarray:
+            return np.concatenate([lam_values(lay), start_values(model.data),
+                                   [model.data.alpha if alpha is None else float(alpha),
+                                    1.0 if formulation == "logchol" else 0.0]])
 
         return NLPProblem(formulation, z, p, f, g, lb, ubz, lbg, ubg, parts, margins, pack, unpack, anchor, n_col,
+                          model,
                           info={"n_variables": int(z.shape[0]), "n_constraints": int(g.shape[0]),
                                 "n_kalman": n_kal, "n_psd": n_psd, "n_target": n_tgt, "n_budget": n_bud,
                                 "sensing_offset": nX, "tri": tri, "d": d, "K": K, "J": J, "floor": floor},

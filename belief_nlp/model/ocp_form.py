@@ -34,6 +34,7 @@ Q_k depends on every earlier step).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -94,6 +95,18 @@ class OCPProblem:
     @property
     def anchor(self) -> Callable[[Layout], np.ndarray]:
         return self.source.anchor
+
+    @property
+    def model(self):
+        return self.source.model
+
+    def for_model(self, model) -> "OCPProblem":
+        """This form over ``source.for_model(model)`` (:meth:`.NLPProblem.for_model`)."""
+        return self if model is self.source.model else dataclasses.replace(self, source=self.source.for_model(model))
+
+    def margin_values(self, zv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(collision, target) margins at z values (stage order), with the model's start belief."""
+        return self.source.margin_values(self.to_source(zv))
 
     def pack(self, lay: Layout) -> np.ndarray:
         """Layout -> variable values in stage order (copies equal their originals)."""
@@ -288,7 +301,9 @@ def build_ocp(nlp: NLPProblem) -> OCPProblem:
     z_src = ca.vertcat(*[z_o[int(i)] for i in orig])           # the source variables, read from the originals
     parts = ca.Function("ocp_parts", [z_o, nlp.p], nlp.parts(z_src, nlp.p), ["z", "p"],
                         ["control", "information", "regulariser"])
-    margins = ca.Function("ocp_margins", [z_o], nlp.margins(z_src), ["z"], ["collision", "target"])
+    start = ca.SX.sym("start", nlp.margins.size1_in(1))
+    margins = ca.Function("ocp_margins", [z_o, start], nlp.margins(z_src, start), ["z", "start"],
+                          ["collision", "target"])
     info = {**nlp.info, "n_variables": int(z_o.shape[0]), "n_constraints": int(g_o.shape[0]),
             "n_carried": int(sum(nx)), "stages_of_source": lab}
     return OCPProblem(nlp, z_o, nlp.p, f_o, g_o, np.asarray(lbz, float), np.asarray(ubz, float),

@@ -1,0 +1,113 @@
+"""Re-planning from a new start belief: what a call costs when the scenario's
+build is reused, against a call that builds everything (issue 21, item 5).
+
+The start belief (x0, P0) is a parameter of every form (the NLP's ``p``, the
+CCP step's parameters), so a re-plan from a new belief on the same scenario
+and K reuses the NLP graph, IPOPT's derivatives and solver, and the CCP
+step's conic data. Before, the start was a constant of each form and part of
+the cache key, so every new start built all of them: the "rebuild" rows
+(caches cleared before the call) are what a new start cost then.
+
+Protocol: paper-multi, ``--starts`` start beliefs (x0 moved up to 3 cm from
+the paper's, P0 = 1e-9 .. 1e-5 I), each with its own IG-RRT* plan (N = 500,
+per-step noise, seed = start index) and warm start at K; ``--method``
+(default auto), alpha 1. One process. Per start: caches cleared, the call
+timed ("rebuild"); the previous start solved again (the cache now holds the
+scenario's build, last used with another start); the call timed again
+("reuse"). Both answers must be equal (cost to 1e-8) and verified.
+
+    python benchmarks/bench_replan.py [--K 20 40] [--starts 8] [--method auto] [--out FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+import belief_nlp as bn
+from belief_nlp.methods.nlp_build import clear_cache
+from belief_nlp.model.cache import MEMORY
+
+HERE = Path(__file__).resolve().parent / "results"
+
+
+def _starts(n: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """n (x0, P0): x0 on rings of 1-3 cm around the paper's start, P0 = 1e-9 .. 1e-5 I."""
+    base = bn.load_scenario("paper-multi")
+    out = []
+    for i in range(n):
+        r, a = 0.01 * (1 + i % 3), 2 * np.pi * i / max(n, 1)
+        out.append((base.x0 + r * np.array([np.cos(a), np.sin(a)]), 10.0 ** (-9 + i % 5) * np.eye(2)))
+    return out
+
+
+def _case(x0, P0, seed: int, K: int):
+    sc = bn.load_scenario("paper-multi").with_options(x0=x0, P0=P0)
+    plan = bn.plan(sc, n_nodes=500, seed=seed, noise="per_step")
+    if not plan.success:
+        return None
+    try:
+        return sc, bn.warm_start(sc, plan.path, K=K)
+    except bn.errors.BeliefNLPError:
+        return None
+
+
+def _timed(sc, ws, method: str) -> dict:
+    load = os.getloadavg()[0]
+    t, c = time.perf_counter(), time.process_time()
+    res = bn.smooth(sc, ws, method=method, alpha=1.0)
+    return {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c, "status": res.status,
+            "iterations": int(res.nit), "cost": float(res.cost), "verified": bool(bn.verify(sc, res.path).safe),
+            "build": res.stats.get("build") or res.stats.get("ipopt", {}).get("build"), "load": load}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--K", type=int, nargs="+", default=[20, 40])
+    ap.add_argument("--starts", type=int, default=8)
+    ap.add_argument("--method", default="auto")
+    ap.add_argument("--out", type=Path, default=HERE / "replan.json")
+    args = ap.parse_args()
+    t0, load0 = time.time(), os.getloadavg()
+    records, table = [], {}
+    for K in args.K:
+        cases = [(i, c) for i, (x0, P0) in enumerate(_starts(args.starts)) if (c := _case(x0, P0, i, K))]
+        _timed(*cases[0][1], args.method)                       # imports, numba, first-call effects
+        rows = []
+        for n, (i, (sc, ws)) in enumerate(cases):
+            clear_cache()
+            MEMORY.clear()
+            rebuild = _timed(sc, ws, args.method)
+            _timed(*cases[n - 1][1], args.method)                # the build now last used with another start
+            reuse = _timed(sc, ws, args.method)
+            rows.append({"K": K, "start": i, "x0": sc.x0.tolist(), "P0": float(sc.P0[0, 0]),
+                         "rebuild": rebuild, "reuse": reuse})
+            print(f"K={K} start {i}: rebuild {rebuild['cpu_s']:.2f} s, reuse {reuse['cpu_s']:.2f} s CPU, "
+                  f"costs {rebuild['cost']:.6f} / {reuse['cost']:.6f}", flush=True)
+        records += rows
+        cpu_b = np.array([r["rebuild"]["cpu_s"] for r in rows])
+        cpu_r = np.array([r["reuse"]["cpu_s"] for r in rows])
+        rel = np.array([abs(r["reuse"]["cost"] - r["rebuild"]["cost"]) / abs(r["rebuild"]["cost"]) for r in rows])
+        table[f"K={K}"] = {"cases": len(rows), "median_cpu_rebuild_s": float(np.median(cpu_b)),
+                           "median_cpu_reuse_s": float(np.median(cpu_r)),
+                           "median_saved_s": float(np.median(cpu_b - cpu_r)),
+                           "median_ratio_reuse_to_rebuild": float(np.median(cpu_r / cpu_b)),
+                           "max_cost_rel_difference": float(rel.max()),
+                           "verified": int(sum(r["rebuild"]["verified"] and r["reuse"]["verified"] for r in rows)),
+                           "median_iterations": float(np.median([r["reuse"]["iterations"] for r in rows]))}
+    doc = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "load_start": load0,
+                       "load_end": os.getloadavg()}, "version": bn.__version__, "wall_total": time.time() - t0,
+           "args": vars(args) | {"out": str(args.out)}, "table": table, "records": records}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(doc, indent=1, default=str))
+    print(json.dumps(table, indent=1))
+
+
+if __name__ == "__main__":
+    main()

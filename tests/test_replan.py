@@ -1,0 +1,113 @@
+"""A re-plan from a new start belief reuses everything built for the scenario.
+
+The start belief (x0, P0) is a parameter of every form generated from the
+model (the NLP's p, the CCP step's parameters), not a constant: the cache
+keys leave it out, and a solver or conic step built for one start answers
+another exactly as one built for that start does. Checked against fresh
+builds and against the model's numpy evaluation of the margins.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import belief_nlp as bn
+from belief_nlp.methods.ccp import conic_step_of, initial_rho
+from belief_nlp.methods.nlp_build import clear_cache
+from belief_nlp.model import BeliefModel
+from belief_nlp.model.cache import MEMORY, problem_key
+from belief_nlp.model.conic_form import conic_step
+from belief_nlp.model.nlp_form import build_nlp
+
+from conftest import PAPER_MULTI_WAYPOINTS, densify
+
+
+def _start(x0, P0, steps: int = 2):
+    """(paper-multi with start (x0, P0), the warm start of the hand route from x0)."""
+    sc = bn.load_scenario("paper-multi").with_options(x0=np.asarray(x0, float), P0=np.asarray(P0, float))
+    wp = PAPER_MULTI_WAYPOINTS.copy()
+    wp[0] = x0
+    x = densify(wp, steps)
+    K = x.shape[0] - 1
+    path = bn.BeliefPath.from_sensing(x, sc.P0, np.broadcast_to(1e4 * np.eye(2), (K, 2, 2)), W=sc.W)
+    return sc, bn.warm_start(sc, path)
+
+
+@pytest.fixture(scope="module")
+def two_starts():
+    """The paper's start and a moved one with a 1000x larger covariance (K = 10)."""
+    return _start((0.15, 0.50), 1e-9 * np.eye(2)), _start((0.17, 0.47), 1e-6 * np.array([[1.0, 0.3], [0.3, 2.0]]))
+
+
+def test_the_key_leaves_out_the_start_only(two_starts):
+    (sc1, ws1), (sc2, ws2) = two_starts
+    d1 = BeliefModel(sc1, ws1.K, 1.0).data
+    d2 = BeliefModel(sc2, ws2.K, 0.3).data
+    assert problem_key(d1, 1e-6, "s") == problem_key(d2, 1e-6, "s")
+    other_w = BeliefModel(sc1.with_options(W=2 * sc1.W), ws1.K, 1.0).data
+    other_chi2 = BeliefModel(sc1.with_options(chi2_value=sc1.chi2 + 1), ws1.K, 1.0).data
+    assert len({problem_key(d, 1e-6, "s") for d in (d1, other_w, other_chi2)}) == 3
+
+
+def test_nlp_built_for_one_start_has_the_rows_of_another(two_starts):
+    """The NLP of start 1 read with start 2's model: its rows and cost parts
+    are start 2's model margins and cost at random points (the k = 1 rows
+    read x0 and P0)."""
+    (sc1, ws1), (sc2, ws2) = two_starts
+    m1, m2 = BeliefModel(sc1, ws1.K, 1.0), BeliefModel(sc2, ws2.K, 1.0)
+    nlp = build_nlp(m1, "cholesky").for_model(m2)
+    z = m2.tighten(m2.from_path(ws2.path, ws2.lam))
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        q = z.copy()
+        q.x[1:] += 0.01 * rng.normal(size=q.x[1:].shape)
+        q.lam = q.lam * np.exp(0.05 * rng.normal(size=q.lam.shape))
+        q = m2.tighten(q)
+        col, tgt = nlp.margin_values(nlp.pack(q))
+        s, e = m2.transition_margins(q)
+        np.testing.assert_allclose(col, np.stack([s, e], axis=-1).ravel(), rtol=1e-7, atol=1e-7)
+        np.testing.assert_allclose(tgt, m2.target_margins(q), rtol=1e-8, atol=1e-9)
+        ctrl, info, _ = (float(v) for v in nlp.parts(nlp.pack(q), nlp.anchor(q)))
+        c2, ctrl2, info2 = m2.cost(q)
+        assert ctrl == pytest.approx(ctrl2, rel=1e-9) and info == pytest.approx(info2, rel=1e-9, abs=1e-12)
+        # start 1's own model reads other values at k = 1: the binding matters
+        assert not np.allclose(build_nlp(m1, "cholesky").margin_values(nlp.pack(q))[0][:2], col[:2])
+    assert np.array_equal(nlp.unpack(nlp.pack(z)).x[0], m2.data.x0)
+
+
+def test_conic_step_built_for_one_start_is_the_step_of_another(two_starts):
+    """The cached Clarabel data of start 1, read with start 2's layout, equal
+    the data built from start 2's convex form."""
+    (sc1, ws1), (sc2, ws2) = two_starts
+    m1, m2 = BeliefModel(sc1, ws1.K, 1.0), BeliefModel(sc2, ws2.K, 1.0)
+    MEMORY.clear()
+    first = conic_step_of(m1, cache_dir=False)
+    reused = conic_step_of(m2, cache_dir=False)
+    assert reused.fn is first.fn and reused.layout.data is m2.data
+    fresh = conic_step(m2.convex_form)
+    q = m2.tighten(m2.from_path(ws2.path, ws2.lam))
+    rho = initial_rho(m2, q)
+    for got, ref in zip(reused.data(q, rho, rho), fresh.data(q, rho, rho)):
+        got, ref = (v.toarray() if hasattr(v, "toarray") else v for v in (got, ref))
+        np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("method", ["ipopt", "ccp"])
+def test_a_replan_from_a_new_start_reuses_the_build_and_answers_as_a_fresh_one(two_starts, method):
+    (sc1, ws1), (sc2, ws2) = two_starts
+    kw = {"method": method, "alpha": 1.0} | ({"max_iter": 3000} if method == "ipopt" else {})
+    clear_cache()
+    MEMORY.clear()
+    bn.smooth(sc1, ws1, **kw)
+    reused = bn.smooth(sc2, ws2, **kw)
+    clear_cache()
+    MEMORY.clear()
+    fresh = bn.smooth(sc2, ws2, **kw)
+    if method == "ipopt":
+        assert reused.stats["build"] == "memory" and fresh.stats["build"] == "built"
+    assert reused.status == fresh.status == "converged" and reused.safe
+    assert bn.verify(sc2, reused.path).safe
+    assert np.array_equal(reused.path.x[0], sc2.x0) and np.array_equal(reused.path.P[0], sc2.P0)
+    assert reused.cost == pytest.approx(fresh.cost, rel=1e-8) and reused.nit == fresh.nit
+    np.testing.assert_allclose(reused.path.x, fresh.path.x, rtol=0, atol=1e-8)
