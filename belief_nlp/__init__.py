@@ -17,8 +17,8 @@ from .scenario import Scenario, list_scenarios, load_scenario, save_scenario, sc
 from .allocation import RiskAllocation, RiskBudget
 from .verify import VerificationReport, verify
 from .smoother import (DEFAULT_METHOD, STATUSES, IterationRecord, Method, Option, Outcome, SmoothResult,
-                       SmoothingProblem, WarmStart, available_methods, available_solvers, get_method, smooth,
-                       warm_start)
+                       SmoothingProblem, WarmStart, available_methods, available_solvers, get_method, reanchor, replan,
+                       smooth, warm_start)
 from .smoother import register as register_method
 from . import methods  # noqa: F401 - importing registers the built-in methods
 from .methods.ccp_subproblem import ccp_subproblem, ccp_subproblem_path
@@ -76,7 +76,9 @@ __all__ = [
     "load_records",
     "load_scenario",
     "plan",
+    "reanchor",
     "records_to_table",
+    "replan",
     "save_scenario",
     "scenario_from_dict",
     "set_disk_cache",

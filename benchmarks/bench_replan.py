@@ -15,6 +15,11 @@ per-step noise, seed = start index) and warm start at K; ``--method``
 timed ("rebuild"); the previous start solved again (the cache now holds the
 scenario's build, last used with another start); the call timed again
 ("reuse"). Both answers must be equal (cost to 1e-8) and verified.
+Then ``bn.replan`` from the answer at the paper's own start (the previous
+plan of a control loop whose belief moved): "replan" rows, warm started from
+that answer instead of a new plan (its iterations, CPU and cost against the
+"reuse" call's; a start whose re-anchored first step is not clear is
+recorded as infeasible).
 
     python benchmarks/bench_replan.py [--K 20 40] [--starts 8] [--method auto] [--out FILE]
 """
@@ -58,10 +63,14 @@ def _case(x0, P0, seed: int, K: int):
         return None
 
 
-def _timed(sc, ws, method: str) -> dict:
+def _timed(sc, ws, method: str, previous=None) -> dict:
     load = os.getloadavg()[0]
     t, c = time.perf_counter(), time.process_time()
-    res = bn.smooth(sc, ws, method=method, alpha=1.0)
+    try:
+        res = bn.replan(sc, previous, method=method, alpha=1.0) if previous is not None else \
+            bn.smooth(sc, ws, method=method, alpha=1.0)
+    except bn.InfeasibleStartError as exc:
+        return {"status": "infeasible_start", "error": str(exc)[:200], "cpu_s": time.process_time() - c}
     return {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c, "status": res.status,
             "iterations": int(res.nit), "cost": float(res.cost), "verified": bool(bn.verify(sc, res.path).safe),
             "build": res.stats.get("build") or res.stats.get("ipopt", {}).get("build"), "load": load}
@@ -78,7 +87,9 @@ def main() -> None:
     records, table = [], {}
     for K in args.K:
         cases = [(i, c) for i, (x0, P0) in enumerate(_starts(args.starts)) if (c := _case(x0, P0, i, K))]
-        _timed(*cases[0][1], args.method)                       # imports, numba, first-call effects
+        base = bn.load_scenario("paper-multi")       # the previous plan (also the imports, numba, first calls)
+        previous = bn.smooth(base, bn.warm_start(base, bn.plan(base, n_nodes=500, seed=0, noise="per_step").path,
+                                                 K=K), method=args.method, alpha=1.0)
         rows = []
         for n, (i, (sc, ws)) in enumerate(cases):
             clear_cache()
@@ -86,10 +97,13 @@ def main() -> None:
             rebuild = _timed(sc, ws, args.method)
             _timed(*cases[n - 1][1], args.method)                # the build now last used with another start
             reuse = _timed(sc, ws, args.method)
+            again = _timed(sc, ws, args.method, previous)
             rows.append({"K": K, "start": i, "x0": sc.x0.tolist(), "P0": float(sc.P0[0, 0]),
-                         "rebuild": rebuild, "reuse": reuse})
+                         "rebuild": rebuild, "reuse": reuse, "replan": again})
             print(f"K={K} start {i}: rebuild {rebuild['cpu_s']:.2f} s, reuse {reuse['cpu_s']:.2f} s CPU, "
-                  f"costs {rebuild['cost']:.6f} / {reuse['cost']:.6f}", flush=True)
+                  f"costs {rebuild['cost']:.6f} / {reuse['cost']:.6f}; replan {again['status']} "
+                  f"{again['cpu_s']:.2f} s {again.get('iterations')} its {again.get('cost', float('nan')):.6f}",
+                  flush=True)
         records += rows
         cpu_b = np.array([r["rebuild"]["cpu_s"] for r in rows])
         cpu_r = np.array([r["reuse"]["cpu_s"] for r in rows])
@@ -101,6 +115,18 @@ def main() -> None:
                            "max_cost_rel_difference": float(rel.max()),
                            "verified": int(sum(r["rebuild"]["verified"] and r["reuse"]["verified"] for r in rows)),
                            "median_iterations": float(np.median([r["reuse"]["iterations"] for r in rows]))}
+        ok = [r for r in rows if r["replan"]["status"] != "infeasible_start"]
+        if ok:
+            table[f"K={K}"].update({
+                "replan_cases": len(ok), "replan_infeasible_start": len(rows) - len(ok),
+                "replan_verified": int(sum(r["replan"]["verified"] for r in ok)),
+                "median_cpu_replan_s": float(np.median([r["replan"]["cpu_s"] for r in ok])),
+                "median_iterations_replan": float(np.median([r["replan"]["iterations"] for r in ok])),
+                "median_iterations_reuse_same_cases": float(np.median([r["reuse"]["iterations"] for r in ok])),
+                "median_cpu_reuse_same_cases_s": float(np.median([r["reuse"]["cpu_s"] for r in ok])),
+                "replan_cost_over_reuse_cost": [float(f(np.array([r["replan"]["cost"] / r["reuse"]["cost"]
+                                                                  for r in ok]))) for f in (np.min, np.median,
+                                                                                            np.max)]})
     doc = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "load_start": load0,
                        "load_end": os.getloadavg()}, "version": bn.__version__, "wall_total": time.time() - t0,
            "args": vars(args) | {"out": str(args.out)}, "table": table, "records": records}

@@ -108,6 +108,74 @@ def test_a_replan_from_a_new_start_reuses_the_build_and_answers_as_a_fresh_one(t
         assert reused.stats["build"] == "memory" and fresh.stats["build"] == "built"
     assert reused.status == fresh.status == "converged" and reused.safe
     assert bn.verify(sc2, reused.path).safe
-    assert np.array_equal(reused.path.x[0], sc2.x0) and np.array_equal(reused.path.P[0], sc2.P0)
+    # (to rounding: the path comes back from the model's scaled units)
+    np.testing.assert_allclose(reused.path.x[0], sc2.x0, rtol=1e-15, atol=0)
+    np.testing.assert_allclose(reused.path.P[0], sc2.P0, rtol=1e-14, atol=0)
     assert reused.cost == pytest.approx(fresh.cost, rel=1e-8) and reused.nit == fresh.nit
     np.testing.assert_allclose(reused.path.x, fresh.path.x, rtol=0, atol=1e-8)
+
+
+@pytest.fixture(scope="module")
+def previous(two_starts):
+    """IPOPT's answer from the paper's start (K = 10)."""
+    (sc1, ws1), _ = two_starts
+    return bn.smooth(sc1, ws1, method="ipopt", alpha=1.0, max_iter=3000)
+
+
+def test_reanchor_keeps_the_means_and_sensing_from_the_new_start(two_starts, previous):
+    _, (sc2, _) = two_starts
+    for advance in (0, 1, 3):
+        p = bn.reanchor(sc2, previous, advance=advance)
+        assert p.K == previous.path.K - advance
+        np.testing.assert_array_equal(p.x[0], sc2.x0)
+        np.testing.assert_array_equal(p.x[1:], previous.path.x[advance + 1:])
+        np.testing.assert_array_equal(p.S[1:], previous.path.S[advance + 1:])
+        np.testing.assert_array_equal(p.P[0], sc2.P0)
+        # the Kalman recursion from the new P0 (Lemma 2), computed here by hand
+        P1 = np.linalg.inv(np.linalg.inv(sc2.P0 + sc2.W) + p.S[1])
+        np.testing.assert_allclose(p.P[1], P1, rtol=1e-9, atol=1e-15)
+
+
+def test_replan_is_the_reanchored_smooth_and_reuses_the_build(two_starts, previous):
+    """replan = smooth of the re-anchored path with its sensing kept; on the
+    same scenario and K nothing is built; the answer is verified, starts at
+    the new belief and is no costlier than its warm start."""
+    (sc1, _), _ = two_starts
+    sc2 = sc1.with_options(x0=sc1.x0 + np.array([1e-3, -2e-3]), P0=4e-9 * np.eye(2))    # the robot's new belief
+    kw = {"method": "ipopt", "alpha": 1.0, "max_iter": 3000}
+    r = bn.replan(sc2, previous, **kw)
+    ref = bn.smooth(sc2, bn.reanchor(sc2, previous), sensing="path", **kw)
+    assert r.status == "converged" and r.safe and bn.verify(sc2, r.path).safe
+    assert r.stats["build"] == "memory"
+    assert r.cost == ref.cost and r.nit == ref.nit
+    assert r.path.K == previous.path.K and r.cost <= r.initial_cost
+    np.testing.assert_allclose(r.path.x[0], sc2.x0, rtol=1e-15, atol=0)
+    np.testing.assert_allclose(r.path.P[0], sc2.P0, rtol=1e-14, atol=0)
+    # two steps executed: the robot is near the previous plan's step-2 belief
+    moved = sc1.with_options(x0=previous.path.x[2] + np.array([-1e-3, 0.0]), P0=previous.path.P[2])
+    shorter = bn.replan(moved, previous, advance=2, **kw)
+    assert shorter.status == "converged" and shorter.path.K == previous.path.K - 2
+    assert bn.verify(moved, shorter.path).safe
+
+
+@pytest.mark.parametrize("kwargs, field", [({"advance": -1}, "advance"), ({"advance": 10}, "advance"),
+                                           ({"advance": 1.0}, "advance"), ({"advance": True}, "advance"),
+                                           ({"K": 8}, "K"), ({"sensing": "minimal"}, "sensing")])
+def test_replan_bad_arguments_are_named(two_starts, previous, kwargs, field):
+    _, (sc2, _) = two_starts
+    with pytest.raises(bn.ValidationError) as err:
+        bn.replan(sc2, previous, **kwargs)
+    assert err.value.field == field
+    with pytest.raises(bn.ValidationError) as err:
+        bn.replan(sc2, "last plan")
+    assert err.value.field == "previous"
+
+
+def test_replan_from_a_start_the_first_step_cannot_leave_is_refused(two_starts, previous):
+    """From (0.17, 0.47) the previous plan's third mean lies behind obstacle 2
+    (as if two steps were done but the robot had not moved): the re-anchored
+    start is refused, naming the transition and the obstacle."""
+    _, (sc2, _) = two_starts
+    with pytest.raises(bn.InfeasibleStartError) as err:
+        bn.replan(sc2, previous, advance=2, method="ipopt")
+    assert err.value.transition == 1 and err.value.obstacle == "obstacle 2"

@@ -1,0 +1,111 @@
+"""Re-planning from a new start belief, warm started from a previous answer.
+
+In a control loop the robot's belief moves between plans (a step executed,
+a measurement fused, a disturbance), and the last answer is a far better
+start than a new IG-RRT* plan: its means are smooth and its sensing is
+where the cost wants it. :func:`replan` re-anchors that answer at the
+scenario's start belief, keeps its sensing (``warm_start(...,
+sensing="path")``, which adds sensing only where a transition needs it)
+and smooths. The start belief is a parameter of every solver form, so on
+the same scenario and horizon nothing is built again
+(docs/performance.md, "Re-planning").
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..errors import ValidationError
+from ..path import BeliefPath
+from ..scenario import Scenario
+from .driver import smooth
+from .registry import DEFAULT_METHOD
+from .result import SmoothResult
+from .warmstart import WarmStart
+
+__all__ = ["replan", "reanchor"]
+
+
+def reanchor(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, advance: int = 0) -> BeliefPath:
+    """The path of ``previous`` moved to the scenario's start belief.
+
+    Its means after step ``advance`` follow the scenario's x0, with their
+    sensing; the covariances are rolled out again from the scenario's P0
+    under its per-step noise W. ``advance`` is the number of steps executed
+    since ``previous`` was planned (0: the same horizon, only the start
+    belief moved; k: the first k steps are done, the horizon is K - k).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The problem with the robot's current belief as its start (x0, P0).
+    previous : SmoothResult, WarmStart or BeliefPath
+        The last plan.
+    advance : int, optional
+        Steps executed since ``previous`` (0 <= advance < its K; default 0).
+
+    Returns
+    -------
+    BeliefPath
+        K - advance steps from (x0, P0); not checked here (:func:`replan`
+        builds a verified warm start from it).
+
+    Raises
+    ------
+    ValidationError
+        Bad ``previous`` or ``advance``.
+    """
+    path = previous.path if isinstance(previous, (SmoothResult, WarmStart)) else previous
+    if not isinstance(path, BeliefPath):
+        raise ValidationError("previous", f"must be a SmoothResult, WarmStart or BeliefPath, "
+                                          f"got {type(previous).__name__}")
+    if path.dim != scenario.dim:
+        raise ValidationError("previous", f"its path has dimension {path.dim}, the scenario {scenario.dim}")
+    if isinstance(advance, (bool, np.bool_)) or not isinstance(advance, (int, np.integer)) \
+            or not 0 <= advance < path.K:
+        raise ValidationError("advance", f"must be an integer in [0, {path.K - 1}] (the previous path has "
+                                         f"{path.K} steps), got {advance!r}")
+    x = np.vstack([np.asarray(scenario.x0, float)[None], path.x[advance + 1:]])
+    S = np.asarray(path.S, float)[advance + 1:]
+    return BeliefPath.from_sensing(x, scenario.P0, S, W=scenario.W)
+
+
+def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, advance: int = 0,
+           method: Any = DEFAULT_METHOD, **kwargs: Any) -> SmoothResult:
+    """Smooth from ``scenario``'s start belief, warm started from ``previous``.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The problem with the robot's current belief as its start (x0, P0):
+        e.g. ``scenario.with_options(x0=x_hat, P0=P_hat)``.
+    previous : SmoothResult, WarmStart or BeliefPath
+        The last plan (:func:`reanchor` moves it to the new start).
+    advance : int, optional
+        Steps executed since ``previous`` (default 0); the horizon becomes
+        ``previous.K - advance``.
+    method, **kwargs
+        As :func:`belief_nlp.smooth` (``K`` is the re-anchored path's and
+        may not be given).
+
+    Returns
+    -------
+    SmoothResult
+        As :func:`belief_nlp.smooth`; verified like every answer.
+
+    Raises
+    ------
+    InfeasibleStartError
+        When a re-anchored transition cannot be made clear (the new start
+        too close to a hazard for the first step the previous plan took).
+    ValidationError
+        Bad ``previous`` or ``advance``, or a ``K`` given.
+    """
+    for name in ("K", "sensing"):
+        if name in kwargs:
+            raise ValidationError(name, "replan keeps the previous path's steps (minus advance) and its sensing; "
+                                        "smooth reanchor(...) yourself to change them")
+    # the driver builds the warm start (with a risk budget's level, its K fallback)
+    return smooth(scenario, reanchor(scenario, previous, advance), method=method, sensing="path", **kwargs)
