@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import belief_nlp as bn
+from belief_nlp.allocation import RiskBudget
 from belief_nlp.methods.ccp import conic_step_of, initial_rho
 from belief_nlp.methods.nlp_build import clear_cache
 from belief_nlp.model import BeliefModel
@@ -76,11 +77,14 @@ def test_nlp_built_for_one_start_has_the_rows_of_another(two_starts):
     assert np.array_equal(nlp.unpack(nlp.pack(z)).x[0], m2.data.x0)
 
 
-def test_conic_step_built_for_one_start_is_the_step_of_another(two_starts):
+@pytest.mark.parametrize("risk", [None, RiskBudget(0.05, allocation="uniform", kind="continuous")],
+                         ids=["steps", "continuous"])
+def test_conic_step_built_for_one_start_is_the_step_of_another(two_starts, risk):
     """The cached Clarabel data of start 1, read with start 2's layout, equal
-    the data built from start 2's convex form."""
+    the data built from start 2's convex form (under a continuous-time
+    budget too, whose transition 2 reads T2 = (P0 + 2 W)^-1)."""
     (sc1, ws1), (sc2, ws2) = two_starts
-    m1, m2 = BeliefModel(sc1, ws1.K, 1.0), BeliefModel(sc2, ws2.K, 1.0)
+    m1, m2 = BeliefModel(sc1, ws1.K, 1.0, risk=risk), BeliefModel(sc2, ws2.K, 1.0, risk=risk)
     MEMORY.clear()
     first = conic_step_of(m1, cache_dir=False)
     reused = conic_step_of(m2, cache_dir=False)
