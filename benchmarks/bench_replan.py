@@ -17,9 +17,11 @@ scenario's build, last used with another start); the call timed again
 ("reuse"). Both answers must be equal (cost to 1e-8) and verified.
 Then ``bn.replan`` from the answer at the paper's own start (the previous
 plan of a control loop whose belief moved): "replan" rows, warm started from
-that answer instead of a new plan (its iterations, CPU and cost against the
-"reuse" call's; a start whose re-anchored first step is not clear is
-recorded as infeasible).
+that answer instead of a new plan, its first IPOPT stage resumed from the
+answer's variables and multipliers (``SmoothResult.resume``); "replan_path"
+rows the same from the re-anchored path alone (``resume`` dropped). Their
+iterations, CPU and cost against the "reuse" call's; a start whose
+re-anchored first step is not clear is recorded as infeasible.
 
     python benchmarks/bench_replan.py [--K 20 40] [--starts 8] [--method auto] [--out FILE]
 """
@@ -27,6 +29,7 @@ recorded as infeasible).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -73,7 +76,8 @@ def _timed(sc, ws, method: str, previous=None) -> dict:
         return {"status": "infeasible_start", "error": str(exc)[:200], "cpu_s": time.process_time() - c}
     return {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c, "status": res.status,
             "iterations": int(res.nit), "cost": float(res.cost), "verified": bool(bn.verify(sc, res.path).safe),
-            "build": res.stats.get("build") or res.stats.get("ipopt", {}).get("build"), "load": load}
+            "build": res.stats.get("build") or res.stats.get("ipopt", {}).get("build"), "load": load,
+            "resumed": res.stats.get("resumed") or res.stats.get("ipopt", {}).get("resumed")}
 
 
 def main() -> None:
@@ -98,11 +102,13 @@ def main() -> None:
             _timed(*cases[n - 1][1], args.method)                # the build now last used with another start
             reuse = _timed(sc, ws, args.method)
             again = _timed(sc, ws, args.method, previous)
+            path_only = _timed(sc, ws, args.method, dataclasses.replace(previous, resume=None))
             rows.append({"K": K, "start": i, "x0": sc.x0.tolist(), "P0": float(sc.P0[0, 0]),
-                         "rebuild": rebuild, "reuse": reuse, "replan": again})
+                         "rebuild": rebuild, "reuse": reuse, "replan": again, "replan_path": path_only})
             print(f"K={K} start {i}: rebuild {rebuild['cpu_s']:.2f} s, reuse {reuse['cpu_s']:.2f} s CPU, "
                   f"costs {rebuild['cost']:.6f} / {reuse['cost']:.6f}; replan {again['status']} "
-                  f"{again['cpu_s']:.2f} s {again.get('iterations')} its {again.get('cost', float('nan')):.6f}",
+                  f"{again['cpu_s']:.2f} s {again.get('iterations')} its {again.get('cost', float('nan')):.6f} "
+                  f"(path only {path_only['cpu_s']:.2f} s {path_only.get('iterations')} its)",
                   flush=True)
         records += rows
         cpu_b = np.array([r["rebuild"]["cpu_s"] for r in rows])
@@ -122,6 +128,9 @@ def main() -> None:
                 "replan_verified": int(sum(r["replan"]["verified"] for r in ok)),
                 "median_cpu_replan_s": float(np.median([r["replan"]["cpu_s"] for r in ok])),
                 "median_iterations_replan": float(np.median([r["replan"]["iterations"] for r in ok])),
+                "median_cpu_replan_path_s": float(np.median([r["replan_path"]["cpu_s"] for r in ok])),
+                "median_iterations_replan_path": float(np.median([r["replan_path"]["iterations"] for r in ok])),
+                "resumed": [r["replan"].get("resumed") for r in ok],
                 "median_iterations_reuse_same_cases": float(np.median([r["reuse"]["iterations"] for r in ok])),
                 "median_cpu_reuse_same_cases_s": float(np.median([r["reuse"]["cpu_s"] for r in ok])),
                 "replan_cost_over_reuse_cost": [float(f(np.array([r["replan"]["cost"] / r["reuse"]["cost"]

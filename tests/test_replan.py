@@ -9,6 +9,8 @@ builds and against the model's numpy evaluation of the margins.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -148,9 +150,11 @@ def test_replan_is_the_reanchored_smooth_and_reuses_the_build(two_starts, previo
     sc2 = sc1.with_options(x0=sc1.x0 + np.array([1e-3, -2e-3]), P0=4e-9 * np.eye(2))    # the robot's new belief
     kw = {"method": "ipopt", "alpha": 1.0, "max_iter": 3000}
     r = bn.replan(sc2, previous, **kw)
-    ref = bn.smooth(sc2, bn.reanchor(sc2, previous), sensing="path", **kw)
+    ref = bn.smooth(sc2, bn.reanchor(sc2, previous), sensing="path", resume=previous.resume, **kw)
     assert r.status == "converged" and r.safe and bn.verify(sc2, r.path).safe
-    assert r.stats["build"] == "memory"
+    # the graph and its derivatives are the scenario's (the resumed stage's
+    # solver, with its own options, is given them: nothing derived again)
+    assert r.stats["build"] in ("memory", "built (derivatives shared)")
     assert r.cost == ref.cost and r.nit == ref.nit
     assert r.path.K == previous.path.K and r.cost <= r.initial_cost
     np.testing.assert_allclose(r.path.x[0], sc2.x0, rtol=1e-15, atol=0)
@@ -183,3 +187,63 @@ def test_replan_from_a_start_the_first_step_cannot_leave_is_refused(two_starts, 
     with pytest.raises(bn.InfeasibleStartError) as err:
         bn.replan(sc2, previous, advance=2, method="ipopt")
     assert err.value.transition == 1 and err.value.obstacle == "obstacle 2"
+
+
+def test_replan_resumes_ipopt_from_the_last_answers_variables_and_multipliers(two_starts, previous):
+    """The last answer's first-stage state (SmoothResult.resume) starts the
+    re-plan's first stage: the same answer as the re-plan from the path
+    alone (cost to 1e-6), in fewer iterations here (K = 10: the state is
+    4-8 IPOPT iterations from the new optimum)."""
+    (sc1, _), _ = two_starts
+    sc2 = sc1.with_options(x0=sc1.x0 + np.array([1e-3, -2e-3]), P0=4e-9 * np.eye(2))
+    res = previous.resume
+    assert res is not None and res["z"].size == res["lam_x"].size and res["lam_g"].size > 0
+    kw = {"method": "ipopt", "alpha": 1.0, "max_iter": 3000}
+    resumed = bn.replan(sc2, previous, **kw)
+    plain = bn.replan(sc2, dataclasses.replace(previous, resume=None), **kw)
+    assert resumed.stats["resumed"] == "yes" and plain.stats["resumed"] == "no"
+    assert resumed.status == "converged" and resumed.safe and bn.verify(sc2, resumed.path).safe
+    assert resumed.cost == pytest.approx(plain.cost, rel=1e-6)
+    assert resumed.nit < plain.nit
+    assert resumed.resume is not None                  # a loop re-plans again from this one
+    # auto hands it to its IPOPT stage
+    auto = bn.replan(sc2, bn.smooth(sc1, previous.path, method="auto", alpha=1.0), alpha=1.0)
+    assert auto.stats["ipopt"]["resumed"] == "yes" and auto.safe
+
+
+def test_a_resumed_stage_that_fails_falls_back_to_the_usual_first_stage(two_starts, previous, monkeypatch):
+    """When the resumed solve does not end converged and exactly safe, the
+    usual first stage runs from the warm start: the run converges, verified,
+    with both solves in its stats."""
+    from belief_nlp.methods import nlp_engine
+
+    (sc1, _), _ = two_starts
+    sc2 = sc1.with_options(x0=sc1.x0 + np.array([1e-3, -2e-3]))
+    real = nlp_engine._resumed
+
+    def failed(*args, **kwargs):
+        stage = real(*args, **kwargs)
+        stage.answer = None
+        return stage
+
+    monkeypatch.setattr(nlp_engine, "_resumed", failed)
+    r = bn.replan(sc2, previous, method="ipopt", alpha=1.0, max_iter=3000)
+    assert r.stats["resumed"] == "fell back" and r.status == "converged" and r.safe
+    assert len([a for a in r.stats["attempts"] if a["formulation"] == "logchol"]) == 2
+    assert r.cost == pytest.approx(bn.replan(sc2, dataclasses.replace(previous, resume=None), method="ipopt",
+                                             alpha=1.0, max_iter=3000).cost, rel=1e-6)
+
+
+def test_a_resume_state_from_another_graph_is_not_used(two_starts, previous):
+    (sc1, ws1), _ = two_starts
+    other = {**previous.resume, "floor": 3e-3}
+    r = bn.smooth(sc1, ws1, method="ipopt", alpha=1.0, resume=other)
+    assert r.stats["resumed"] == "does not fit" and r.status == "converged"
+    with pytest.raises(bn.ValidationError) as err:
+        bn.smooth(sc1, ws1, method="ipopt", resume={"z": [1.0]})
+    assert err.value.field == "resume"
+
+
+def test_the_resume_state_is_not_saved(previous, tmp_path):
+    back = bn.SmoothResult.load(previous.save(tmp_path / "r.json"))
+    assert back.resume is None and back == previous

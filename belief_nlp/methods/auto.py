@@ -85,13 +85,13 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
         if chk.safe and problem.model.cost(chk.point)[0] <= problem.cost0:
             if not ccp_polish or problem.out_of_time():
                 return Outcome("converged", f"IPOPT: {first.message}", chk.point, "IPOPT", _totals(stats, "ipopt"),
-                               "auto:ipopt")
+                               "auto:ipopt", first.resume)
             problem.points[problem.iterations] = chk.point
             second = _stage(problem, problem.iterations + ccp_polish, ccp.run, *ccp_opts, _start=chk.point)
             stats.update(ccp=second.stats, stages=["ipopt", "ccp polish"])
             # the driver picks the lowest-cost verified candidate: IPOPT's point or a polished one
             return Outcome("converged", f"IPOPT: {first.message}; CCP polish: {second.status}", None, "IPOPT+CCP",
-                           _totals(stats, "ipopt"), "auto:ipopt+ccp")
+                           _totals(stats, "ipopt"), "auto:ipopt+ccp", first.resume)
     if problem.out_of_time() or problem.stop_requested:
         return Outcome(first.status, f"IPOPT: {first.message}", first.point, "IPOPT", _totals(stats, "ipopt"),
                        "auto:ipopt")

@@ -40,6 +40,15 @@ POLISH_IPOPT_OPTIONS: dict[str, Any] = {"mu_strategy": "monotone", "mu_init": 1e
                                         "warm_start_bound_frac": 1e-9, "warm_start_slack_bound_push": 1e-9,
                                         "warm_start_slack_bound_frac": 1e-9, "warm_start_mult_bound_push": 1e-9}
 
+#: a first stage resumed from an earlier answer's variables and multipliers
+#: (bn.replan): started from them, the barrier at 1e-6 (the answer is nearly
+#: optimal; IPOPT's first mu is ~1 otherwise: docs/numerics.md, "The start
+#: belief as a parameter, and re-planning")
+RESUME_IPOPT_OPTIONS: dict[str, Any] = {"warm_start_init_point": "yes", "mu_init": 1e-6,
+                                        "warm_start_bound_push": 1e-9, "warm_start_bound_frac": 1e-9,
+                                        "warm_start_slack_bound_push": 1e-9, "warm_start_slack_bound_frac": 1e-9,
+                                        "warm_start_mult_bound_push": 1e-9}
+
 #: the means' scale of the "logchol" stage (nlp_scaled.py; docs/numerics.md,
 #: "K = 80: continuation and sensing pattern (session 10)")
 SCALE_MEANS = 1.0
@@ -73,6 +82,7 @@ class IpoptBackend(NLPBackend):
     stage_options = {"logchol": LOGCHOL_IPOPT_OPTIONS, "polish": POLISH_IPOPT_OPTIONS}
     shared_functions = {"grad_f": "nlp_grad_f", "jac_g": "nlp_jac_g", "hess_lag": "nlp_hess_l"}
     warm_duals = True
+    resume_options = RESUME_IPOPT_OPTIONS
 
     def nlpsol_options(self, opts: dict, log_path: str | None) -> dict:
         # IPOPT reports f, g and the multipliers of its answer itself; CasADi

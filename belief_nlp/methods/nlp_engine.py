@@ -31,7 +31,11 @@ its cost parts; ``accepted`` = satisfies the NLP's constraints to
 1e-6; ``min_margin`` = the smallest NLP margin; ``kalman_gap`` = the largest
 Kalman-equality residual. Stats: ``attempts`` (formulation, return status,
 iterations, restoration iterations, CPU and wall seconds), ``iter_count``,
-``restoration``, ``cpu_time``, ``return_status``, ``polish_status``.
+``restoration``, ``cpu_time``, ``return_status``, ``polish_status``,
+``resumed`` (with the option ``resume``: "yes", "fell back" when that solve
+did not end converged and exactly safe and the usual first stage ran, "does
+not fit" when it cannot be used here: another graph, plug-in, floor,
+formulation or ``scale_means``; "no" without it).
 """
 
 from __future__ import annotations
@@ -52,7 +56,8 @@ from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Option
 from ..smoother.result import STATUSES, IterationRecord
 from .nlp_backend import NLPBackend
-from .nlp_build import _CACHE, _GRAPHS, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
+from . import nlp_resume
+from .nlp_build import _CACHE, _GRAPHS, _base_key, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
 from .nlp_recorder import Recorder
 
 __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
@@ -124,6 +129,7 @@ class _Stage:
     build_time: float = 0.0
     limit: int = 0                       # the stage's iteration limit
     duals: tuple | None = None           # (lam_x, lam_g) of the answer's solve (backends with warm_duals)
+    z: np.ndarray | None = None          # the variables of that solve (with duals)
 
 
 _STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded", "stalled": "Stalled"}
@@ -172,6 +178,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
             if backend.warm_duals:
                 stage.duals = (np.asarray(sol["lam_x"]).ravel() / nlp.info.get("variable_scale", 1.0),
                                np.asarray(sol["lam_g"]).ravel())
+                stage.z = z_end
             if not backend.calls_back:
                 recorder.solved(z_end, np.asarray(sol["g"]).ravel(), float(sol["f"]), solver.stats())
         except RuntimeError as exc:   # CasADi raises on some solver exceptions
@@ -228,9 +235,14 @@ def _iterations(stats: dict, recorder: Recorder, backend: NLPBackend) -> int:
 
 def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str = "logchol", floor: float = 1e-2,
             polish: int = 50, regularisation: float = 1e-4, margin: float = DEFAULT_POLICY.nlp, restarts: int = 1,
-            stall: int = 300, candidates: int = 5, cache: bool = True, scale_means: float = 1.0) -> Outcome:
+            stall: int = 300, candidates: int = 5, cache: bool = True, scale_means: float = 1.0,
+            resume: dict | None = None) -> Outcome:
     """``backend``'s solver from the problem's start (module doc); ``scale_means``
-    != 1 solves the first stage with the means scaled (:mod:`.nlp_scaled`)."""
+    != 1 solves the first stage with the means scaled (:mod:`.nlp_scaled`);
+    ``resume``: an earlier answer's first-stage state (:mod:`.nlp_resume`),
+    the first stage's start when it fits (same graph, plug-in and floor) --
+    and the usual first stage from the warm start when that solve does not
+    end converged and exactly safe."""
     if problem.out_of_time():                      # the warm start used the budget up
         return Outcome("time_limit", f"{STATUSES['time_limit']} (before {backend.name} started)", None,
                        backend.name)
@@ -245,10 +257,22 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     bar = problem.progress_bar(backend.name)
     common = dict(margin=margin, regularisation=regularisation, candidates=candidates, cache=cache, bar=bar,
                   stall=stall)
+    resumable = backend.warm_duals and formulation == "logchol" and scale_means == 1
+    key = _base_key(problem, formulation, margin, regularisation) if resumable else ""
     try:
-        first = _solve_stage(problem, backend, _Stage(), formulation=formulation, floor=floor, opts=opts,
-                             start=problem.start, max_iter=max_iter, restarts=restarts, offset=problem.iterations,
-                             scale=scale_means, **common)
+        first, resumed = None, "no"
+        if resume is not None and resumable and nlp_resume.matches(resume, backend.plugin, key, floor):
+            first = _resumed(problem, backend, resume, opts, floor, max_iter, common)
+            resumed = "yes" if first.answer is not None else "fell back"
+        elif resume is not None:
+            resumed = "does not fit"
+        if first is None or first.answer is None:
+            before = first
+            first = _solve_stage(problem, backend, _Stage(), formulation=formulation, floor=floor, opts=opts,
+                                 start=problem.start, max_iter=max_iter - (before.used if before else 0),
+                                 restarts=restarts, offset=problem.iterations, scale=scale_means, **common)
+            if before is not None:       # one stage in the stats: the resumed solve, then the usual one
+                first.attempts, first.used = before.attempts + first.attempts, before.used + first.used
         stages = [first]
         if formulation == "logchol" and polish and first.answer is not None and first.used < max_iter \
                 and not problem.out_of_time() and not problem.stop_requested:
@@ -265,7 +289,23 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     finally:                  # also when a solver refused its options (ValidationError)
         if bar is not None:
             bar.close()
-    return _outcome(problem, backend, stages, max_iter)
+    out = _outcome(problem, backend, stages, max_iter)
+    out.stats["resumed"] = resumed
+    if resumable and first.answer is not None and first.duals is not None:
+        out.resume = nlp_resume.state(backend.plugin, key, floor, first.z, first.duals)
+    return out
+
+
+def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts: dict, floor: float,
+             max_iter: int, common: dict) -> _Stage:
+    """The first stage from ``resume``'s variables and multipliers, with the
+    backend's ``resume_options`` (where the user's solver options are silent);
+    one attempt."""
+    own = {k: v for k, v in backend.resume_options.items() if k not in problem.solver_options}
+    return _solve_stage(problem, backend, _Stage(), formulation="logchol", floor=floor, opts={**opts, **own},
+                        start=problem.start, max_iter=max_iter, restarts=0, offset=problem.iterations,
+                        bounds=lambda nlp, lay: (np.clip(resume["z"], nlp.lbz, nlp.ubz), nlp.lbz, nlp.ubz),
+                        duals=(resume["lam_x"], resume["lam_g"]), **common)
 
 
 def _outcome(problem: SmoothingProblem, backend: NLPBackend, stages: list[_Stage], max_iter: int) -> Outcome:
@@ -338,4 +378,7 @@ def nlp_options(solver: str) -> dict[str, Option]:
         "candidates": Option(5, "feasible iterates kept as fallback candidates", _count),
         "cache": Option(True, f"reuse the NLP and {solver} instance of an earlier call with the same model",
                         lambda v: None if isinstance(v, bool) else "must be True or False"),
+        "resume": Option(None, "an earlier answer's first-stage state (SmoothResult.resume) to start that stage "
+                               "from, on the same scenario and K (bn.replan passes it; used by solvers that take "
+                               "initial multipliers: IPOPT)", nlp_resume.check),
     }

@@ -91,6 +91,9 @@ class Outcome:
         Raw solver statistics (return status, iterations, times, ...).
     label : str, optional
         What answered, when not the method's name (e.g. ``"auto:ccp"``).
+    resume : dict, optional
+        State a later call can start from (:attr:`SmoothResult.resume`; the
+        NLP methods: the first stage's variables and multipliers).
     """
 
     status: str
@@ -99,6 +102,7 @@ class Outcome:
     solver: str = ""
     stats: dict = field(default_factory=dict)
     label: str = ""          # what answered, when not the method's name (e.g. "auto:ccp")
+    resume: dict | None = None
 
 
 class SmoothingProblem:

@@ -408,7 +408,7 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
         timings={"setup": t_setup, "solver": float(sum(h.solve_time for h in hist)),
                  "total": time.perf_counter() - problem.t0},
         verification=report.to_dict(), initial_cost=problem.cost0, iterates=iterates, stats=dict(outcome.stats),
-        certificates=lam_si, risk=_allocation(problem, answer, report))
+        certificates=lam_si, risk=_allocation(problem, answer, report), resume=outcome.resume)
 
 
 def _risk_args(model: BeliefModel, z: Layout) -> dict:

@@ -21,7 +21,7 @@ from ..errors import ValidationError
 from ..path import BeliefPath
 from ..scenario import Scenario
 from .driver import smooth
-from .registry import DEFAULT_METHOD
+from .registry import DEFAULT_METHOD, Method, get_method
 from .result import SmoothResult
 from .warmstart import WarmStart
 
@@ -107,5 +107,15 @@ def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, 
         if name in kwargs:
             raise ValidationError(name, "replan keeps the previous path's steps (minus advance) and its sensing; "
                                         "smooth reanchor(...) yourself to change them")
+    resume = previous.resume if isinstance(previous, SmoothResult) and advance == 0 else None
+    if resume is not None:
+        # the NLP's first stage starts from the last answer's variables and multipliers
+        # (methods with the option "resume", or auto's IPOPT stage); a method without them ignores it
+        m = method if isinstance(method, Method) else get_method(method) if isinstance(method, str) else None
+        names = set(m.options) if m is not None else set()
+        if "resume" in names and "resume" not in kwargs:
+            kwargs["resume"] = resume
+        elif "ipopt_options" in names and "resume" not in (kwargs.get("ipopt_options") or {}):
+            kwargs["ipopt_options"] = {**(kwargs.get("ipopt_options") or {}), "resume": resume}
     # the driver builds the warm start (with a risk budget's level, its K fallback)
     return smooth(scenario, reanchor(scenario, previous, advance), method=method, sensing="path", **kwargs)

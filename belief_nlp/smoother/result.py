@@ -170,6 +170,12 @@ class SmoothResult:
         With a risk budget (``smooth(..., risk=Delta)``): the budget, each
         transition-hazard pair's level and allotted risk (K, J), and the
         certified end-to-end bound of the returned path; None otherwise.
+    resume : dict or None
+        What a re-plan on the same scenario and K can start from
+        (:func:`belief_nlp.replan` passes it on): for IPOPT's first stage
+        (methods ``ipopt`` and ``auto``) its converged variables and
+        multipliers; None for other methods. In memory only: not saved, not
+        compared.
     """
 
     path: BeliefPath
@@ -191,6 +197,7 @@ class SmoothResult:
     stats: dict = field(default_factory=dict)
     certificates: np.ndarray | None = field(default=None, repr=False)
     risk: RiskAllocation | None = field(default=None, repr=False)
+    resume: dict | None = field(default=None, repr=False, compare=False)
 
     @property
     def x(self) -> np.ndarray:
@@ -217,7 +224,7 @@ class SmoothResult:
             as a list of dicts, ``certificates`` as nested lists (or None).
         """
         out = {k: v for k, v in asdict(self).items()
-               if k not in ("path", "history", "iterates", "certificates", "risk")}
+               if k not in ("path", "history", "iterates", "certificates", "risk", "resume")}
         out["risk"] = None if self.risk is None else self.risk.to_dict()
         out["certificates"] = None if self.certificates is None else np.asarray(self.certificates).tolist()
         out["path"] = self.path.to_dict()
