@@ -247,3 +247,11 @@ def test_a_resume_state_from_another_graph_is_not_used(two_starts, previous):
 def test_the_resume_state_is_not_saved(previous, tmp_path):
     back = bn.SmoothResult.load(previous.save(tmp_path / "r.json"))
     assert back.resume is None and back == previous
+
+
+def test_replan_with_auto_options_of_the_wrong_type_is_our_error(two_starts, previous):
+    (sc1, _), _ = two_starts
+    sc2 = sc1.with_options(x0=sc1.x0 + np.array([1e-3, -2e-3]))
+    with pytest.raises(bn.ValidationError) as err:
+        bn.replan(sc2, previous, method="auto", ipopt_options="fast")
+    assert err.value.field == "ipopt_options"

@@ -132,6 +132,11 @@ class _Stage:
     z: np.ndarray | None = None          # the variables of that solve (with duals)
 
 
+#: iterations a first stage resumed from an earlier answer may take (it took
+#: 4-9 on paper-multi at K = 20, ~30 at K = 40); past them the usual first
+#: stage from the warm start runs instead
+RESUME_LIMIT = 100
+
 _STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded", "stalled": "Stalled"}
 
 
@@ -260,14 +265,12 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     resumable = backend.warm_duals and formulation == "logchol" and scale_means == 1
     key = _base_key(problem, formulation, margin, regularisation) if resumable else ""
     try:
-        first, resumed = None, "no"
+        before, resumed = None, "no" if resume is None else "does not fit"
         if resume is not None and resumable and nlp_resume.matches(resume, backend.plugin, key, floor):
-            first = _resumed(problem, backend, resume, opts, floor, max_iter, common)
-            resumed = "yes" if first.answer is not None else "fell back"
-        elif resume is not None:
-            resumed = "does not fit"
+            before = _resumed(problem, backend, resume, opts, floor, max_iter, common)
+            resumed = "yes" if before.answer is not None else "fell back"
+        first = before
         if first is None or first.answer is None:
-            before = first
             first = _solve_stage(problem, backend, _Stage(), formulation=formulation, floor=floor, opts=opts,
                                  start=problem.start, max_iter=max_iter - (before.used if before else 0),
                                  restarts=restarts, offset=problem.iterations, scale=scale_means, **common)
@@ -300,10 +303,11 @@ def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts:
              max_iter: int, common: dict) -> _Stage:
     """The first stage from ``resume``'s variables and multipliers, with the
     backend's ``resume_options`` (where the user's solver options are silent);
-    one attempt."""
+    one attempt of at most :data:`RESUME_LIMIT` iterations."""
     own = {k: v for k, v in backend.resume_options.items() if k not in problem.solver_options}
     return _solve_stage(problem, backend, _Stage(), formulation="logchol", floor=floor, opts={**opts, **own},
-                        start=problem.start, max_iter=max_iter, restarts=0, offset=problem.iterations,
+                        start=problem.start, max_iter=min(max_iter, RESUME_LIMIT), restarts=0,
+                        offset=problem.iterations,
                         bounds=lambda nlp, lay: (np.clip(resume["z"], nlp.lbz, nlp.ubz), nlp.lbz, nlp.ubz),
                         duals=(resume["lam_x"], resume["lam_g"]), **common)
 

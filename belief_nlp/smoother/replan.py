@@ -6,9 +6,11 @@ start than a new IG-RRT* plan: its means are smooth and its sensing is
 where the cost wants it. :func:`replan` re-anchors that answer at the
 scenario's start belief, keeps its sensing (``warm_start(...,
 sensing="path")``, which adds sensing only where a transition needs it)
-and smooths. The start belief is a parameter of every solver form, so on
-the same scenario and horizon nothing is built again
-(docs/performance.md, "Re-planning").
+and smooths; IPOPT's first stage resumes from the last answer's variables
+and multipliers (:mod:`belief_nlp.methods.nlp_resume`). The start belief is
+a parameter of every solver form, so on the same scenario and horizon
+nothing is built again (docs/performance.md, "Re-planning from a new
+belief").
 """
 
 from __future__ import annotations
@@ -82,7 +84,11 @@ def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, 
         The problem with the robot's current belief as its start (x0, P0):
         e.g. ``scenario.with_options(x0=x_hat, P0=P_hat)``.
     previous : SmoothResult, WarmStart or BeliefPath
-        The last plan (:func:`reanchor` moves it to the new start).
+        The last plan (:func:`reanchor` moves it to the new start). A
+        :class:`SmoothResult` of ``ipopt`` or ``auto`` also hands IPOPT's
+        first stage its variables and multipliers (:attr:`SmoothResult.resume`,
+        with ``advance`` 0): a few iterations instead of a new descent
+        (docs/performance.md, "Re-planning from a new belief").
     advance : int, optional
         Steps executed since ``previous`` (default 0); the horizon becomes
         ``previous.K - advance``.
@@ -115,7 +121,9 @@ def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, 
         names = set(m.options) if m is not None else set()
         if "resume" in names and "resume" not in kwargs:
             kwargs["resume"] = resume
-        elif "ipopt_options" in names and "resume" not in (kwargs.get("ipopt_options") or {}):
-            kwargs["ipopt_options"] = {**(kwargs.get("ipopt_options") or {}), "resume": resume}
+        elif "ipopt_options" in names:
+            given = kwargs.get("ipopt_options")
+            if given is None or isinstance(given, dict) and "resume" not in given:     # (else auto names it)
+                kwargs["ipopt_options"] = {**(given or {}), "resume": resume}
     # the driver builds the warm start (with a risk budget's level, its K fallback)
     return smooth(scenario, reanchor(scenario, previous, advance), method=method, sensing="path", **kwargs)
