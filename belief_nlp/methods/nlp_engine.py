@@ -132,10 +132,11 @@ class _Stage:
     z: np.ndarray | None = None          # the variables of that solve (with duals)
 
 
-#: iterations a first stage resumed from an earlier answer may take (it took
-#: 4-9 on paper-multi at K = 20, ~30 at K = 40); past them the usual first
-#: stage from the warm start runs instead
-RESUME_LIMIT = 100
+#: iterations per step a first stage resumed from an earlier answer may take
+#: (it took 4-9 on paper-multi at K = 20 and 65-167 at K = 80, where a fixed
+#: cap of 100 sent 2 of 4 re-plans back to a cold stage of 170-270
+#: iterations); past them the usual first stage runs instead
+RESUME_LIMIT = 5
 
 _STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded", "stalled": "Stalled"}
 
@@ -303,10 +304,10 @@ def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts:
              max_iter: int, common: dict) -> _Stage:
     """The first stage from ``resume``'s variables and multipliers, with the
     backend's ``resume_options`` (where the user's solver options are silent);
-    one attempt of at most :data:`RESUME_LIMIT` iterations."""
+    one attempt of at most :data:`RESUME_LIMIT` K iterations."""
     own = {k: v for k, v in backend.resume_options.items() if k not in problem.solver_options}
     return _solve_stage(problem, backend, _Stage(), formulation="logchol", floor=floor, opts={**opts, **own},
-                        start=problem.start, max_iter=min(max_iter, RESUME_LIMIT), restarts=0,
+                        start=problem.start, max_iter=min(max_iter, RESUME_LIMIT * problem.model.data.K), restarts=0,
                         offset=problem.iterations,
                         bounds=lambda nlp, lay: (np.clip(resume["z"], nlp.lbz, nlp.ubz), nlp.lbz, nlp.ubz),
                         duals=(resume["lam_x"], resume["lam_g"]), **common)
