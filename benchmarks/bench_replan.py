@@ -23,7 +23,9 @@ rows the same from the re-anchored path alone (``resume`` dropped). Their
 iterations, CPU and cost against the "reuse" call's; a start whose
 re-anchored first step is not clear is recorded as infeasible.
 
-    python benchmarks/bench_replan.py [--K 20 40] [--starts 8] [--method auto] [--out FILE]
+    python benchmarks/bench_replan.py [--K 20 40] [--starts 8] [--method auto] [--ccp-polish N] [--out FILE]
+
+``--ccp-polish`` sets auto's ``ccp_polish`` for the two re-plan calls only.
 """
 
 from __future__ import annotations
@@ -66,12 +68,12 @@ def _case(x0, P0, seed: int, K: int):
         return None
 
 
-def _timed(sc, ws, method: str, previous=None) -> dict:
+def _timed(sc, ws, method: str, previous=None, **kw) -> dict:
     load = os.getloadavg()[0]
     t, c = time.perf_counter(), time.process_time()
     try:
-        res = bn.replan(sc, previous, method=method, alpha=1.0) if previous is not None else \
-            bn.smooth(sc, ws, method=method, alpha=1.0)
+        res = bn.replan(sc, previous, method=method, alpha=1.0, **kw) if previous is not None else \
+            bn.smooth(sc, ws, method=method, alpha=1.0, **kw)
     except bn.InfeasibleStartError as exc:
         return {"status": "infeasible_start", "error": str(exc)[:200], "cpu_s": time.process_time() - c}
     return {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c, "status": res.status,
@@ -85,8 +87,10 @@ def main() -> None:
     ap.add_argument("--K", type=int, nargs="+", default=[20, 40])
     ap.add_argument("--starts", type=int, default=8)
     ap.add_argument("--method", default="auto")
+    ap.add_argument("--ccp-polish", type=int, default=None, help="auto's ccp_polish for the re-plans (default: auto's)")
     ap.add_argument("--out", type=Path, default=HERE / "replan.json")
     args = ap.parse_args()
+    kw = {} if args.ccp_polish is None else {"ccp_polish": args.ccp_polish}
     t0, load0 = time.time(), os.getloadavg()
     records, table = [], {}
     for K in args.K:
@@ -101,8 +105,8 @@ def main() -> None:
             rebuild = _timed(sc, ws, args.method)
             _timed(*cases[n - 1][1], args.method)                # the build now last used with another start
             reuse = _timed(sc, ws, args.method)
-            again = _timed(sc, ws, args.method, previous)
-            path_only = _timed(sc, ws, args.method, dataclasses.replace(previous, resume=None))
+            again = _timed(sc, ws, args.method, previous, **kw)
+            path_only = _timed(sc, ws, args.method, dataclasses.replace(previous, resume=None), **kw)
             rows.append({"K": K, "start": i, "x0": sc.x0.tolist(), "P0": float(sc.P0[0, 0]),
                          "rebuild": rebuild, "reuse": reuse, "replan": again, "replan_path": path_only})
             print(f"K={K} start {i}: rebuild {rebuild['cpu_s']:.2f} s, reuse {reuse['cpu_s']:.2f} s CPU, "
