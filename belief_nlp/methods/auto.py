@@ -68,17 +68,20 @@ def _totals(stats: dict, answer: str) -> dict:
 
 
 def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | None = None, ccp_solver: str = "CLARABEL",
-        ccp_solver_options: dict | None = None, ipopt_options: dict | None = None) -> Outcome:
+        ccp_solver_options: dict | None = None, ipopt_options: dict | None = None,
+        resume: dict | None = None) -> Outcome:
     """IPOPT, then CCP when IPOPT's answer is not taken (module doc). The
     run's ``solver_options`` go to IPOPT; CCP's come from ``ccp_solver_options``;
     ``ipopt_options`` are the first stage's method options (``floor``,
-    ``polish``, ...: those of ``method="ipopt"``)."""
+    ``polish``, ...: those of ``method="ipopt"``); ``resume`` goes to the
+    IPOPT stage unless ``ipopt_options`` gives its own."""
     ccp_opts = (ccp_solver, ccp_solver_options or {})
     if ccp_polish is None:       # under a risk budget a CCP step is ~10x dearer (no active-set step): no polish
         ccp_polish = POLISH if problem.model.data.budget is None else 0
     reserve = min(ccp_reserve, problem.max_iter // 2)
+    first_options = {**({"resume": resume} if resume is not None else {}), **(ipopt_options or {})}
     first = _stage(problem, problem.max_iter - reserve, FIRST_STAGE.run, FIRST_STAGE.METHOD.default_solver,
-                   problem.solver_options, **(ipopt_options or {}))
+                   problem.solver_options, **first_options)
     stats: dict[str, Any] = {"ipopt": first.stats, "stages": ["ipopt"]}
     if first.status == "converged" and first.point is not None:
         chk = problem.check(first.point)
@@ -137,5 +140,8 @@ METHOD = register(Method(
                                           lambda v: None if v is None or isinstance(v, dict) else "must be a dict"),
              "ipopt_options": Option(None, "method options of the IPOPT stage, e.g. {'floor': 5e-3} (those of "
                                            "method 'ipopt'; solver_options are IPOPT's own)",
-                                     _check_first_stage_options)},
+                                     _check_first_stage_options),
+             "resume": Option(None, "an earlier answer's first-stage state (SmoothResult.resume) for the IPOPT "
+                                    "stage: its option 'resume' (bn.replan passes it)",
+                              FIRST_STAGE.METHOD.options["resume"].check)},
 ))

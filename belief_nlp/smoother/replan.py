@@ -114,16 +114,10 @@ def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, 
             raise ValidationError(name, "replan keeps the previous path's steps (minus advance) and its sensing; "
                                         "smooth reanchor(...) yourself to change them")
     resume = previous.resume if isinstance(previous, SmoothResult) and advance == 0 else None
-    if resume is not None:
-        # the NLP's first stage starts from the last answer's variables and multipliers
-        # (methods with the option "resume", or auto's IPOPT stage); a method without them ignores it
-        m = method if isinstance(method, Method) else get_method(method) if isinstance(method, str) else None
-        names = set(m.options) if m is not None else set()
-        if "resume" in names and "resume" not in kwargs:
-            kwargs["resume"] = resume
-        elif "ipopt_options" in names:
-            given = kwargs.get("ipopt_options")
-            if given is None or isinstance(given, dict) and "resume" not in given:     # (else auto names it)
-                kwargs["ipopt_options"] = {**(given or {}), "resume": resume}
+    # the NLP's first stage starts from the last answer's variables and multipliers
+    # (the methods with the option "resume": ipopt, auto; the others go without)
+    m = method if isinstance(method, Method) else get_method(method) if isinstance(method, str) else None
+    if resume is not None and m is not None and "resume" in m.options:
+        kwargs.setdefault("resume", resume)
     # the driver builds the warm start (with a risk budget's level, its K fallback)
     return smooth(scenario, reanchor(scenario, previous, advance), method=method, sensing="path", **kwargs)
