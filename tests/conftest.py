@@ -93,3 +93,19 @@ def ipopt_from():
         return done[key][1]
 
     return solve
+
+
+@pytest.fixture
+def resume_fails(monkeypatch):
+    """Every resumed first stage ends without an answer (as a solve that does
+    not converge, or is not exactly safe, would): the engine's fallback runs."""
+    from belief_nlp.methods import nlp_engine
+
+    real = nlp_engine._resumed
+
+    def failed(*args, **kwargs):
+        stage = real(*args, **kwargs)
+        stage.answer = None
+        return stage
+
+    monkeypatch.setattr(nlp_engine, "_resumed", failed)

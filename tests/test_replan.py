@@ -211,22 +211,12 @@ def test_replan_resumes_ipopt_from_the_last_answers_variables_and_multipliers(tw
     assert auto.stats["ipopt"]["resumed"] == "yes" and auto.safe
 
 
-def test_a_resumed_stage_that_fails_falls_back_to_the_usual_first_stage(two_starts, previous, monkeypatch):
+def test_a_resumed_stage_that_fails_falls_back_to_the_usual_first_stage(two_starts, previous, resume_fails):
     """When the resumed solve does not end converged and exactly safe, the
     usual first stage runs from the warm start: the run converges, verified,
     with both solves in its stats."""
-    from belief_nlp.methods import nlp_engine
-
     (sc1, _), _ = two_starts
     sc2 = sc1.with_options(x0=sc1.x0 + np.array([1e-3, -2e-3]))
-    real = nlp_engine._resumed
-
-    def failed(*args, **kwargs):
-        stage = real(*args, **kwargs)
-        stage.answer = None
-        return stage
-
-    monkeypatch.setattr(nlp_engine, "_resumed", failed)
     r = bn.replan(sc2, previous, method="ipopt", alpha=1.0, max_iter=3000)
     assert r.stats["resumed"] == "fell back" and r.status == "converged" and r.safe
     assert len([a for a in r.stats["attempts"] if a["formulation"] == "logchol"]) == 2

@@ -6,6 +6,7 @@ derivative functions are loaded from an earlier process instead of built
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from typing import Any
 
@@ -13,8 +14,9 @@ import casadi as ca
 
 from ..errors import ValidationError
 from ..model.cache import MODEL_REVISION, MemoryCache, compile_enabled, disk_cache, problem_key
+from ..model.evaluate import BeliefModel
 from ..model.nlp_form import NLPProblem, build_nlp
-from ..smoother.context import SmoothingProblem
+from ..model.nlp_prefix import frozen
 from . import nlp_compiled
 from .nlp_backend import NLPBackend
 from .nlp_recorder import Recorder
@@ -34,26 +36,39 @@ def clear_cache() -> None:
     _GRAPHS.clear()
 
 
-def _base_key(problem: SmoothingProblem, formulation: str, margin: float, regularisation: float) -> str:
+def _base_key(model: BeliefModel, formulation: str, margin: float, regularisation: float) -> str:
     """Key of an NLP graph: the model's data without alpha (the NLP's
     parameter), the margin, the regularisation and the formulation ("cholesky"
     and "logchol" are one graph, :meth:`NLPProblem.variant`)."""
     family = "cholesky|logchol" if formulation in ("cholesky", "logchol") else formulation
-    return problem_key(problem.model.data, margin, f"nlp:{family}:{regularisation}")
+    return problem_key(model.data, margin, f"nlp:{family}:{regularisation}")
 
 
-def _nlp(problem: SmoothingProblem, formulation: str, margin: float, regularisation: float, floor: float,
+@functools.lru_cache(maxsize=4)
+def longer(model: BeliefModel, prefix: int) -> BeliefModel:
+    """``model`` with ``prefix`` more steps (its scenario, start and alpha):
+    the graph a re-plan after ``prefix`` executed steps is solved on
+    (:func:`belief_nlp.model.nlp_prefix.frozen`). Without a risk budget: its
+    levels depend on the horizon."""
+    if not prefix:
+        return model
+    if model.risk_budget is not None:
+        raise ValidationError("resume", "a re-plan under a risk budget cannot be read on a longer horizon")
+    return BeliefModel(model.scenario, model.data.K + prefix, model.data.alpha)
+
+
+def _nlp(model: BeliefModel, formulation: str, margin: float, regularisation: float, floor: float,
          cache: bool) -> tuple[NLPProblem, dict]:
     """The NLP of ``formulation`` and the derivative functions solvers built
     on its graph so far (by plug-in), from the cache when the graph is there."""
-    key = _base_key(problem, formulation, margin, regularisation)
+    key = _base_key(model, formulation, margin, regularisation)
     entry = _GRAPHS.get(key) if cache else None
     if entry is None:
         # the graph's symbolic part from another process (disk cache), else built and kept there
         disk = disk_cache() if cache else None
         graph = disk.load(key, kind="graph") if disk is not None else None
         valid = isinstance(graph, dict) and isinstance(graph.get("function"), ca.Function)
-        entry = (build_nlp(problem.model, formulation, margin=margin, regularisation=regularisation, floor=floor,
+        entry = (build_nlp(model, formulation, margin=margin, regularisation=regularisation, floor=floor,
                            graph=graph if valid else None), {})
         if disk is not None and not valid:
             disk.save(key, entry[0].graph, kind="graph")
@@ -65,24 +80,34 @@ def _nlp(problem: SmoothingProblem, formulation: str, margin: float, regularisat
     return nlp, shared
 
 
-def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formulation: str, margin: float,
+def solver_of(model: BeliefModel, backend: NLPBackend, opts: dict, formulation: str, margin: float,
               regularisation: float, floor: float, candidates: int, cache: bool,
-              scale: float = 1.0) -> tuple[NLPProblem, Any, Recorder, str]:
-    """NLP, nlpsol instance and recorder, from the cache when the model and
-    options match; ``scale`` != 1: the NLP with its means scaled
-    (:func:`.nlp_scaled.scaled`, option ``scale_means`` of method "ipopt")."""
+              scale: float = 1.0, prefix: int = 0) -> tuple[NLPProblem, Any, Recorder, str]:
+    """NLP, nlpsol instance and recorder of ``model``, from the cache when the
+    model and options match; ``scale`` != 1: the NLP with its means scaled
+    (:func:`.nlp_scaled.scaled`, option ``scale_means`` of method "ipopt");
+    ``prefix`` > 0: the NLP of ``prefix`` more steps with those frozen at the
+    model's start (:func:`belief_nlp.model.nlp_prefix.frozen`), its solver.
+    The recorder is bound to the NLP returned."""
+    if prefix:
+        nlp, solver, recorder, source = solver_of(longer(model, prefix), backend, opts, formulation, margin,
+                                                  regularisation, floor, candidates, cache, scale)
+        nlp = frozen(nlp, model, prefix)
+        recorder.bind(nlp)
+        return nlp, solver, recorder, source
     # the floor shapes only the "logchol" NLP: it stays out of the other
     # formulations' keys (no second build of an identical NLP); alpha is the
     # NLP's parameter, not part of it: one solver serves every alpha
     floor_key = floor if formulation == "logchol" else None
     scale_key = "" if scale == 1 else f":scale_means={float(scale)!r}"
-    key = problem_key(problem.model.data, margin,
+    key = problem_key(model.data, margin,
                       f"{backend.plugin}:{formulation}:{regularisation}:{floor_key}{scale_key}:{sorted(opts.items())!r}")
     entry = _CACHE.get(key) if cache else None
     if entry is not None:
         # the key leaves out the start belief (a parameter): read this model's
-        return entry[0].for_model(problem.model), entry[1], entry[2], "memory"
-    view, shared = _nlp(problem, formulation, margin, regularisation, floor, cache)
+        entry[2].bind(entry[0])
+        return entry[0].for_model(model), entry[1], entry[2], "memory"
+    view, shared = _nlp(model, formulation, margin, regularisation, floor, cache)
     nlp = backend.form(view)
     if scale != 1:
         if nlp is not view:
@@ -113,7 +138,7 @@ def solver_of(problem: SmoothingProblem, backend: NLPBackend, opts: dict, formul
             nlp_compiled.start(*fill)
     if cache:
         _CACHE.put(key, (nlp, solver, recorder))
-    return nlp.for_model(problem.model), solver, recorder, "built" if not given else source
+    return nlp.for_model(model), solver, recorder, "built" if not given else source
 
 
 def _given_derivatives(nlp: NLPProblem, backend: NLPBackend, shared: dict, slot: str,

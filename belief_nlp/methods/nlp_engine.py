@@ -57,7 +57,7 @@ from ..smoother.registry import Option
 from ..smoother.result import STATUSES, IterationRecord
 from .nlp_backend import NLPBackend
 from . import nlp_resume
-from .nlp_build import _CACHE, _GRAPHS, _base_key, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
+from .nlp_build import _CACHE, _GRAPHS, _base_key, clear_cache, longer, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
 from .nlp_recorder import Recorder
 
 __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
@@ -144,7 +144,8 @@ _STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_Wall
 def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, *, formulation: str, opts: dict,
                  margin: float, regularisation: float, floor: float, candidates: int, cache: bool, start: Layout,
                  max_iter: int, restarts: int, stall: int, offset: int, bar: Any,
-                 bounds: Callable | None = None, duals: tuple | None = None, scale: float = 1.0) -> _Stage:
+                 bounds: Callable | None = None, duals: tuple | None = None, scale: float = 1.0,
+                 prefix: int = 0) -> _Stage:
     """The solver on one formulation from ``start``: attempts with restarts
     from the best exactly safe point (module doc), at most ``max_iter``
     iterations. ``bounds(nlp, point)`` -> (z0, lbz, ubz) replaces the NLP's
@@ -156,8 +157,8 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         # fatrop's limit m allows m + 1 iterations by its own count (measured)
         opts, restarts = {**opts, backend.limit_key: max(int(max_iter) - 1, 0)}, 0
     t_build = time.perf_counter()
-    nlp, solver, recorder, stage.build = solver_of(problem, backend, opts, formulation, margin, regularisation, floor,
-                                                   max(int(candidates), 0), cache, scale)
+    nlp, solver, recorder, stage.build = solver_of(problem.model, backend, opts, formulation, margin, regularisation,
+                                                   floor, max(int(candidates), 0), cache, scale, prefix)
     stage.build_time = time.perf_counter() - t_build
     stage.limit = int(max_iter)
     recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0)
@@ -177,7 +178,9 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         t_solve, c_solve, log_at = time.perf_counter(), time.process_time(), _log_size(recorder.log_path)
         try:
             x0, lbx, ubx = bounds(nlp, z_start) if bounds else (nlp.pack(z_start), nlp.lbz, nlp.ubz)
-            warm = {"lam_x0": duals[0], "lam_g0": duals[1]} if duals is not None and n_attempts == 0 else {}
+            # a row without bounds (a frozen step's, nlp_prefix) starts without a multiplier
+            warm = {"lam_x0": duals[0], "lam_g0": np.where(np.isfinite(nlp.lbg) | np.isfinite(nlp.ubg), duals[1], 0.0)} \
+                if duals is not None and n_attempts == 0 else {}
             with backend.solving():
                 sol = solver(x0=x0, p=pv, lbx=lbx, ubx=ubx, lbg=nlp.lbg, ubg=nlp.ubg, **warm)
             z_end = np.asarray(sol["x"]).ravel()
@@ -264,19 +267,27 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     common = dict(margin=margin, regularisation=regularisation, candidates=candidates, cache=cache, bar=bar,
                   stall=stall)
     resumable = backend.warm_duals and formulation == "logchol" and scale_means == 1
-    key = _base_key(problem, formulation, margin, regularisation) if resumable else ""
+    resumed = "no" if resume is None else "does not fit"
+    # a state of a longer horizon (steps executed since) is read with them
+    # frozen; not under a risk budget, whose levels depend on the horizon
+    fits = resumable and resume is not None and (resume["offset"] == 0 or problem.model.risk_budget is None)
+    prefix = int(resume["offset"]) if fits else 0
+    key = _base_key(longer(problem.model, prefix), formulation, margin, regularisation) if resumable else ""
     try:
-        before, resumed = None, "no" if resume is None else "does not fit"
-        if resume is not None and resumable and nlp_resume.matches(resume, backend.plugin, key, floor):
-            before = _resumed(problem, backend, resume, opts, floor, max_iter, common)
-            resumed = "yes" if before.answer is not None else "fell back"
-        first = before
-        if first is None or first.answer is None:
+        before = None
+        if fits and nlp_resume.matches(resume, backend.plugin, key, floor):
+            before = _resumed(problem, backend, resume, opts, floor, max_iter, common, prefix)
+            resumed = "does not fit" if before is None else "yes" if before.answer is not None else "fell back"
+        if before is None or before.answer is None:
+            if prefix:      # the usual stage on the problem's own graph
+                prefix, key = 0, _base_key(problem.model, formulation, margin, regularisation)
             first = _solve_stage(problem, backend, _Stage(), formulation=formulation, floor=floor, opts=opts,
                                  start=problem.start, max_iter=max_iter - (before.used if before else 0),
                                  restarts=restarts, offset=problem.iterations, scale=scale_means, **common)
             if before is not None:       # one stage in the stats: the resumed solve, then the usual one
                 first.attempts, first.used = before.attempts + first.attempts, before.used + first.used
+        else:
+            first = before
         stages = [first]
         if formulation == "logchol" and polish and first.answer is not None and first.used < max_iter \
                 and not problem.out_of_time() and not problem.stop_requested:
@@ -288,29 +299,40 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
                                   bounds=lambda nlp, lay: nlp.without_sensing(lay, floor), start=first.answer[1],
                                   max_iter=min(int(polish), max_iter - first.used), restarts=0,
                                   offset=problem.iterations, duals=first.duals if backend.warm_duals else None,
-                                  **common)
+                                  prefix=prefix, **common)
             stages.append(second)
     finally:                  # also when a solver refused its options (ValidationError)
         if bar is not None:
             bar.close()
     out = _outcome(problem, backend, stages, max_iter)
     out.stats["resumed"] = resumed
-    if resumable and first.answer is not None and first.duals is not None:
-        out.resume = nlp_resume.state(backend.plugin, key, floor, first.z, first.duals)
+    if key and first.answer is not None and first.duals is not None:
+        out.resume = nlp_resume.state(backend.plugin, key, floor, first.z, first.duals, prefix)
     return out
 
 
 def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts: dict, floor: float,
-             max_iter: int, common: dict) -> _Stage:
+             max_iter: int, common: dict, prefix: int) -> _Stage | None:
     """The first stage from ``resume``'s variables and multipliers, with the
     backend's ``resume_options`` (where the user's solver options are silent);
-    one attempt of at most :data:`RESUME_LIMIT` K iterations."""
+    one attempt of at most :data:`RESUME_LIMIT` K iterations; on ``resume``'s
+    graph with its first ``prefix`` steps frozen at the problem's start
+    (None when they cannot be: :func:`belief_nlp.model.nlp_prefix.frozen`)."""
     own = {k: v for k, v in backend.resume_options.items() if k not in problem.solver_options}
-    return _solve_stage(problem, backend, _Stage(), formulation="logchol", floor=floor, opts={**opts, **own},
-                        start=problem.start, max_iter=min(max_iter, RESUME_LIMIT * problem.model.data.K), restarts=0,
-                        offset=problem.iterations,
-                        bounds=lambda nlp, lay: (np.clip(resume["z"], nlp.lbz, nlp.ubz), nlp.lbz, nlp.ubz),
-                        duals=(resume["lam_x"], resume["lam_g"]), **common)
+
+    def bounds(nlp: NLPProblem, lay: Layout) -> tuple:
+        # the frozen variables are fixed by their bounds: clipping sets them
+        return np.clip(resume["z"], nlp.lbz, nlp.ubz), nlp.lbz, nlp.ubz
+
+    try:
+        return _solve_stage(problem, backend, _Stage(), formulation="logchol", floor=floor, opts={**opts, **own},
+                            start=problem.start, max_iter=min(max_iter, RESUME_LIMIT * problem.model.data.K),
+                            restarts=0, offset=problem.iterations, bounds=bounds, duals=(resume["lam_x"], resume["lam_g"]),
+                            prefix=prefix, **common)
+    except ValidationError as exc:
+        if exc.field != "resume":
+            raise
+        return None
 
 
 def _outcome(problem: SmoothingProblem, backend: NLPBackend, stages: list[_Stage], max_iter: int) -> Outcome:

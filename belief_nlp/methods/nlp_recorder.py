@@ -28,7 +28,6 @@ class Recorder(ca.Callback):
 
     def __init__(self, nlp: NLPProblem, keep: int, bar, stall: int = 0):
         ca.Callback.__init__(self)
-        self.nlp = nlp
         self.nx = int(nlp.z.shape[0])
         self.ng = int(nlp.g.shape[0])
         self.keep = keep
@@ -41,7 +40,6 @@ class Recorder(ca.Callback):
         self.stop_reason = ""
         self.stall = stall
         self.log_path: str | None = None       # the solver's log file, if its backend writes one
-        self.source_g = getattr(nlp, "source_g", None)
         self.best_cost = np.inf
         self.best_it = 0
         self.t_last = time.perf_counter()
@@ -49,6 +47,18 @@ class Recorder(ca.Callback):
         self.zs: list[np.ndarray] = []         # every iterate, only with keep_all_iterates (tests)
         self.pvs: list[np.ndarray] = []        # the parameter of each attempt
         self.best: list[tuple] = []            # min-heap of (-objective, iteration, z): the lowest
+        self.nlp = None
+        self.bind(nlp)
+        self.construct("belief_nlp_nlp_recorder", {})
+
+    def bind(self, nlp: NLPProblem) -> None:
+        """Read the iterates as ``nlp``'s (the solver's NLP, or a form on
+        the same variables and rows: :func:`belief_nlp.model.nlp_prefix.frozen`):
+        its row bounds, its rows (``source_g``) and its cost parts."""
+        if nlp is self.nlp:
+            return
+        self.nlp = nlp
+        self.source_g = getattr(nlp, "source_g", None)
         # the cost parts evaluated in place (numpy buffers, no DM per iteration);
         # the same function as ``nlp.parts``, so the same values to the last bit
         self._parts_buf, self._parts_run = nlp.parts.buffer()
@@ -56,7 +66,8 @@ class Recorder(ca.Callback):
         self._parts_out = [np.zeros(nlp.parts.nnz_out(i)) for i in range(3)]
         for i, out in enumerate(self._parts_out):
             self._parts_buf.set_res(i, memoryview(out))
-        self.construct("belief_nlp_nlp_recorder", {})
+        if self.pv is not None:
+            self._parts_buf.set_arg(1, memoryview(self.pv))
 
     def reset(self, keep: int, bar, stall: int) -> None:
         """Forget a previous solve (the recorder lives as long as its solver)."""

@@ -10,6 +10,12 @@ re-anchored path alone on paper-multi at K = 20 (docs/numerics.md, "The start
 belief as a parameter, and re-planning"). The engine keeps that state on the
 result (:attr:`belief_nlp.SmoothResult.resume`, in memory only) and
 :func:`belief_nlp.replan` passes it back as the method option ``resume``.
+
+After executed steps (``replan(..., advance=k)``) the horizon is k steps
+shorter: the state then says so (``offset``, :func:`advanced`) and the
+engine solves the re-plan on the state's own, longer graph with its first
+``offset`` steps frozen at the new start (:mod:`belief_nlp.model.nlp_prefix`):
+nothing is built and the multipliers fit.
 """
 
 from __future__ import annotations
@@ -18,17 +24,26 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["state", "matches", "check"]
+__all__ = ["state", "matches", "check", "advanced"]
 
-_KEYS = {"plugin", "key", "floor", "z", "lam_x", "lam_g"}
+_KEYS = {"plugin", "key", "floor", "offset", "z", "lam_x", "lam_g"}
 
 
-def state(plugin: str, key: str, floor: float, z: np.ndarray, duals: tuple) -> dict:
+def state(plugin: str, key: str, floor: float, z: np.ndarray, duals: tuple, offset: int = 0) -> dict:
     """The resumable state of a converged first stage: the graph's key (the
     scenario and K without the start belief and alpha), the floor, the
+    steps of that graph frozen before the answer's (``offset``), the
     variables and the multipliers (lam_x, lam_g)."""
-    return {"plugin": plugin, "key": key, "floor": float(floor), "z": np.array(z, float),
+    return {"plugin": plugin, "key": key, "floor": float(floor), "offset": int(offset), "z": np.array(z, float),
             "lam_x": np.array(duals[0], float), "lam_g": np.array(duals[1], float)}
+
+
+def advanced(resume: dict | None, advance: int) -> dict | None:
+    """``resume`` after ``advance`` executed steps: the same graph with that
+    many more steps frozen (None stays None)."""
+    if resume is None or not advance:
+        return resume
+    return {**resume, "offset": int(resume["offset"]) + int(advance)}
 
 
 def matches(resume: dict, plugin: str, key: str, floor: float) -> bool:
@@ -41,7 +56,8 @@ def check(v: Any) -> str | None:
     """The ``resume`` option's check: None or a state of :func:`state`."""
     if v is None:
         return None
-    if not isinstance(v, dict) or set(v) != _KEYS or not all(
+    if not isinstance(v, dict) or set(v) != _KEYS or not isinstance(v["offset"], int) or v["offset"] < 0 \
+            or not all(
             isinstance(v[k], np.ndarray) and v[k].ndim == 1 and np.all(np.isfinite(v[k])) for k in ("z", "lam_x",
                                                                                                     "lam_g")):
         return "must be None or a SmoothResult's resume state (SmoothResult.resume)"

@@ -9,8 +9,10 @@ sensing="path")``, which adds sensing only where a transition needs it)
 and smooths; IPOPT's first stage resumes from the last answer's variables
 and multipliers (:mod:`belief_nlp.methods.nlp_resume`). The start belief is
 a parameter of every solver form, so on the same scenario and horizon
-nothing is built again (docs/performance.md, "Re-planning from a new
-belief").
+nothing is built again; after executed steps the last answer's graph is
+solved with them frozen (:mod:`belief_nlp.model.nlp_prefix`), so a
+receding-horizon loop builds nothing either (docs/performance.md,
+"Re-planning from a new belief").
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ValidationError
+from ..methods import nlp_resume
 from ..path import BeliefPath
 from ..scenario import Scenario
 from .driver import smooth
@@ -86,12 +89,16 @@ def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, 
     previous : SmoothResult, WarmStart or BeliefPath
         The last plan (:func:`reanchor` moves it to the new start). A
         :class:`SmoothResult` of ``ipopt`` or ``auto`` also hands IPOPT's
-        first stage its variables and multipliers (:attr:`SmoothResult.resume`,
-        with ``advance`` 0): a few iterations instead of a new descent
-        (docs/performance.md, "Re-planning from a new belief").
+        first stage its variables and multipliers (:attr:`SmoothResult.resume`):
+        a few iterations instead of a new descent (docs/performance.md,
+        "Re-planning from a new belief").
     advance : int, optional
         Steps executed since ``previous`` (default 0); the horizon becomes
-        ``previous.K - advance``.
+        ``previous.K - advance``. With the resume state the re-plan is
+        solved on ``previous``'s graph with those steps frozen at the new
+        start (:mod:`belief_nlp.model.nlp_prefix`): nothing is built for
+        the shorter horizon (without a risk budget, whose levels depend on
+        the horizon).
     method, **kwargs
         As :func:`belief_nlp.smooth` (``K`` is the re-anchored path's and
         may not be given).
@@ -113,7 +120,8 @@ def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, 
         if name in kwargs:
             raise ValidationError(name, "replan keeps the previous path's steps (minus advance) and its sensing; "
                                         "smooth reanchor(...) yourself to change them")
-    resume = previous.resume if isinstance(previous, SmoothResult) and advance == 0 else None
+    # after executed steps the state's graph is read with them frozen (nlp_resume.advanced)
+    resume = nlp_resume.advanced(previous.resume, advance) if isinstance(previous, SmoothResult) else None
     # the NLP's first stage starts from the last answer's variables and multipliers
     # (the methods with the option "resume": ipopt, auto; the others go without)
     m = method if isinstance(method, Method) else get_method(method) if isinstance(method, str) else None

@@ -171,10 +171,11 @@ class SmoothResult:
         transition-hazard pair's level and allotted risk (K, J), and the
         certified end-to-end bound of the returned path; None otherwise.
     resume : dict or None
-        What a re-plan on the same scenario and K can start from
-        (:func:`belief_nlp.replan` passes it on): for IPOPT's first stage
-        (methods ``ipopt`` and ``auto``) its converged variables and
-        multipliers; None for other methods. In memory only: not saved, not
+        What a re-plan on the same scenario can start from, on the same K or
+        after executed steps (:func:`belief_nlp.replan` passes it on): for
+        IPOPT's first stage (methods ``ipopt`` and ``auto``) its converged
+        variables and multipliers, and the NLP graph they belong to; None
+        for other methods. In memory only: not saved, not
         compared.
     """
 

@@ -1,0 +1,156 @@
+"""The NLP of a longer horizon read as a shorter one: its first steps frozen.
+
+A receding-horizon loop executes a step and re-plans the K - 1 steps left
+(:func:`belief_nlp.replan` with ``advance``). Solved as its own NLP, every
+step of the loop is a new horizon: a new graph, new derivatives and a new
+solver (~0.5-0.8 s at K = 20), and the last answer's multipliers do not fit
+it. The same problem is the K-step NLP with its first ``offset`` steps
+frozen at the new start belief (x0, P0), their rows switched off:
+
+- means x_1 .. x_offset = x0 (the control terms of the prefix are 0, and
+  ||x_{offset+1} - x_offset||^2 is the first step's);
+- sensing and prior information of the prefix chosen so that the posterior
+  Y_offset = Q_offset + S_offset is P0^-1 exactly: S_k = 0 ("cholesky") or
+  L_k = floor I ("logchol", whose factor cannot be 0) with Q_k = P0^-1 -
+  S_k (Q_1 is the NLP's parameter, Q_k for k >= 2 its fixed variable M_k M_k^T);
+  the Kalman row of step offset + 1 then gives Q_{offset+1} = (P0 + W)^-1,
+  the shorter problem's Q_1, and the start row of transition offset + 1
+  (Theorem 1 at x_offset under Y_offset^-1 = P0) is the shorter problem's
+  first start row;
+- the collision rows of transitions 1 .. offset and the Kalman rows of
+  steps 2 .. offset bounded by -inf .. inf (IPOPT keeps such a row free), the
+  frozen variables fixed by equal bounds (IPOPT's ``fixed_variable_treatment``
+  removes them); the target rows stay: the goal is still reached at step K.
+
+The rest of the NLP is the shorter problem's, term by term (Eq. (11)-(13)),
+up to the constant information of the frozen steps, which ``parts`` takes
+off. So the earlier answer's variables and multipliers are a start for the
+re-plan on the graph and solver that are already built
+(:mod:`belief_nlp.methods.nlp_resume`). Without a risk budget only: a
+budget's levels depend on the number of transition-hazard pairs.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ..errors import ValidationError
+from .data import Layout
+from .evaluate import BeliefModel
+from .nlp_form import NLPProblem
+
+__all__ = ["frozen"]
+
+
+def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
+    """``nlp`` (horizon K, the "cholesky" / "logchol" pair) with its first
+    ``offset`` steps frozen at ``model``'s start belief, read as ``model``'s
+    problem (horizon K - offset): its pack, unpack, anchor, bounds, cost
+    parts and margins are the shorter problem's; z, p, f and g are ``nlp``'s
+    (its solver solves it). Raises ValidationError when the prefix cannot be
+    frozen (horizons, a risk budget, or P0^-1 - floor^2 I not positive
+    definite for "logchol")."""
+    info, D = nlp.info, model.data
+    K, d, tri, floor = info["K"], info["d"], info["tri"], info["floor"]
+    n = K - offset
+    if nlp.formulation not in ("cholesky", "logchol") or not 0 < offset < K or D.K != n \
+            or info["n_budget"] or D.budget is not None or D.continuous:
+        raise ValidationError("resume", f"a {nlp.formulation!r} NLP of {K} steps cannot be read as {D.K} steps "
+                                        f"with {offset} frozen (plain 'cholesky' / 'logchol' NLPs only)")
+    t = len(tri)
+    P_inv = np.linalg.inv(D.P0)
+    L_pre = floor * np.eye(d) if nlp.formulation == "logchol" else np.zeros((d, d))
+    Q_pre = 0.5 * (P_inv + P_inv.T) - L_pre @ L_pre.T
+    w = np.linalg.eigvalsh(Q_pre)
+    if w[0] <= 1e-9 * w[-1]:
+        raise ValidationError("resume", "the start covariance is too large to freeze a floored prefix at it")
+    start = np.concatenate([D.x0, D.P0.ravel(order="F"), Q_pre.ravel(order="F"),
+                            [float(np.linalg.slogdet(Q_pre)[1])]])
+    # the information of a frozen step: 1/2 (log det Y_k - log det Q_k), Y_k = P0^-1
+    info_pre = offset * 0.5 * (np.linalg.slogdet(P_inv)[1] - start[-1])
+
+    # the frozen variables and their values (z: X (d, K), L (t, K), M (t, K - 1), lam (n_lam, K), column-major)
+    nX, nS, nM = d * K, t * K, t * (K - 1)
+    n_lam = (int(nlp.z.shape[0]) - nX - nS - nM) // K
+    ti, tj = [i for i, _ in tri], [j for _, j in tri]
+    sens = L_pre[ti, tj]
+    if nlp.formulation == "logchol":
+        sens = np.where(np.equal(ti, tj), np.log(floor), sens)
+    m_pre = np.linalg.cholesky(Q_pre)[ti, tj]
+    idx = np.concatenate([np.arange(nX)[:d * offset], nX + np.arange(t * offset),
+                          nX + nS + np.arange(t * (offset - 1)), nX + nS + nM + np.arange(n_lam * offset)])
+    vals = np.concatenate([np.tile(D.x0, offset), np.tile(sens, offset), np.tile(m_pre, offset - 1),
+                           np.zeros(n_lam * offset)])
+    lbz, ubz = nlp.lbz.copy(), nlp.ubz.copy()
+    lbz[idx] = ubz[idx] = vals
+    # rows off: collision rows of transitions 1..offset, Kalman rows of steps 2..offset
+    n_col_k = nlp.n_collision // K
+    kal0 = nlp.n_collision + info["n_target"]
+    off_rows = np.concatenate([np.arange(n_col_k * offset), kal0 + np.arange(t * (offset - 1))]).astype(int)
+    lbg, ubg = nlp.lbg.copy(), nlp.ubg.copy()
+    lbg[off_rows], ubg[off_rows] = -np.inf, np.inf
+    keep = np.setdiff1d(np.arange(int(nlp.g.shape[0])), off_rows)
+
+    zs, ps = ca.MX.sym("z", nlp.z.shape[0]), ca.MX.sym("p", nlp.p.shape[0])
+    c, i, r = nlp.parts(zs, ps)
+    parts = ca.Function("parts", [zs, ps], [c, i - info_pre, r], ["z", "p"], ["control", "information", "regulariser"])
+    i_start = n_lam * K
+
+    def extend(lay: Layout) -> Layout:
+        """The K-step point: the frozen prefix, then ``lay``."""
+        x = np.vstack([np.tile(D.x0, (offset + 1, 1)), lay.x[1:]])
+        Q = np.concatenate([np.zeros((1, d, d)), np.tile(Q_pre, (offset, 1, 1)), lay.Q[1:]])
+        S = np.concatenate([np.zeros((offset + 1, d, d)), lay.S[1:]])
+        lam = np.concatenate([np.zeros((offset,) + lay.lam.shape[1:]), lay.lam])
+        return Layout(x, Q, S, lam)
+
+    def pack(lay: Layout) -> np.ndarray:
+        zv = nlp.pack(extend(lay))
+        zv[idx] = vals
+        return zv
+
+    def unpack_with(zv: np.ndarray, model: BeliefModel) -> Layout:
+        full = nlp.unpack_with(zv, model)
+        Q = np.concatenate([np.zeros((1, d, d)), full.Q[offset + 1:]])
+        Q[1] = model.data.Q1                     # the shorter problem's fixed Q_1 (the Kalman row's value)
+        S = np.concatenate([np.zeros((1, d, d)), full.S[offset + 1:]])
+        return Layout(full.x[offset:].copy(), Q, S, full.lam[offset:].copy())
+
+    def anchor_with(lay: Layout, alpha: float | None, model: BeliefModel) -> np.ndarray:
+        pv = nlp.anchor_with(extend(lay), alpha, model)
+        pv[i_start:i_start + start.size] = start
+        return pv
+
+    view = _Frozen(nlp.formulation, nlp.z, nlp.p, nlp.f, nlp.g, lbz, ubz, lbg, ubg, parts, nlp.margins, pack,
+                   unpack_with, anchor_with, n_col_k * n, model,
+                   # the Kalman rows of steps offset + 1 .. K: the first one holds Q_{offset+1} at (P0 + W)^-1
+                   info={**info, "n_kalman": t * n, "frozen": offset}, graph=nlp.graph)
+    view.source, view.offset, view.start, view.extend, view.fixed = nlp, offset, start, extend, (idx, vals)
+    view.source_g = lambda gv: np.asarray(gv)[keep]     # the shorter problem's rows, in its order
+    return view
+
+
+class _Frozen(NLPProblem):
+    """:func:`frozen`'s NLP: its start-dependent parts follow the model."""
+
+    source: NLPProblem
+    offset: int
+    start: np.ndarray
+    fixed: tuple[np.ndarray, np.ndarray]      # the frozen variables' indices and values
+
+    def margin_values(self, zv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        col, tgt = self.margins(zv, self.start)          # the frozen transitions' rows come first
+        return np.asarray(col, float).ravel()[-self.n_collision:], np.asarray(tgt, float).ravel()
+
+    def for_model(self, model: BeliefModel) -> NLPProblem:
+        return self if model is self.model else frozen(self.source, model, self.offset)
+
+    def variant(self, formulation: str, floor: float | None = None) -> NLPProblem:
+        return frozen(self.source.variant(formulation, floor), self.model, self.offset)
+
+    def without_sensing(self, lay: Layout, floor: float, slack: float = 0.1):
+        z0, lbz, ubz = self.source.without_sensing(self.extend(lay), floor, slack)
+        idx, vals = self.fixed
+        z0[idx] = lbz[idx] = ubz[idx] = vals
+        return z0, lbz, ubz

@@ -1,0 +1,164 @@
+"""Re-plans after executed steps (receding horizon) on the longer graph with
+its first steps frozen (belief_nlp.model.nlp_prefix).
+
+The frozen NLP must be the shorter problem term by term: checked against
+the shorter problem's own NLP at perturbed points (rows, cost parts,
+margins), and end to end against re-plans that build the shorter horizon
+and start from the path alone.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import belief_nlp as bn
+from belief_nlp.allocation import RiskBudget
+from belief_nlp.model import BeliefModel
+from belief_nlp.model.nlp_form import build_nlp
+from belief_nlp.model.nlp_prefix import frozen
+
+from conftest import PAPER_MULTI_WAYPOINTS, densify
+
+KW = {"method": "ipopt", "alpha": 1.0, "max_iter": 3000}
+
+
+@pytest.fixture(scope="module")
+def plan10():
+    """paper-multi on the hand route (K = 10) and IPOPT's answer."""
+    sc = bn.load_scenario("paper-multi")
+    x = densify(PAPER_MULTI_WAYPOINTS, 2)
+    path = bn.BeliefPath.from_sensing(x, sc.P0, np.broadcast_to(1e4 * np.eye(2), (x.shape[0] - 1, 2, 2)), W=sc.W)
+    return sc, bn.smooth(sc, bn.warm_start(sc, path), **KW)
+
+
+def _moved(sc, previous, step: int, rng) -> bn.Scenario:
+    """The robot after ``step`` executed steps: near the plan's belief there,
+    with a smaller covariance (a measurement went well) and the mean moved
+    up to 0.5 mm."""
+    return sc.with_options(x0=previous.path.x[step] + 5e-4 * rng.uniform(-1, 1, 2), P0=0.7 * previous.path.P[step])
+
+
+@pytest.mark.parametrize("formulation, offset", [("cholesky", 1), ("logchol", 1), ("logchol", 3)])
+def test_the_frozen_nlp_is_the_shorter_problem(plan10, formulation, offset):
+    """At perturbed points of the shorter problem, the frozen K-step NLP has
+    its margins, cost parts and rows (the extra Kalman block holds the
+    shorter problem's fixed Q_1: 0 at Kalman-consistent points), and its
+    objective differs by one constant (the frozen steps' information)."""
+    sc, previous = plan10
+    K = previous.path.K
+    moved = _moved(sc, previous, offset, np.random.default_rng(offset))
+    long_model, short_model = BeliefModel(sc, K, 1.0), BeliefModel(moved, K - offset, 1.0)
+    view = frozen(build_nlp(long_model, formulation, floor=1e-3), short_model, offset)
+    short = build_nlp(short_model, formulation, floor=1e-3)
+    ws = bn.warm_start(moved, bn.reanchor(moved, previous, advance=offset), sensing="path")
+    z0 = short_model.tighten(short_model.from_path(ws.path, ws.lam))
+    rng = np.random.default_rng(7)
+    gaps = []
+    for _ in range(3):
+        q = z0.copy()
+        q.x[1:] += 0.01 * rng.normal(size=q.x[1:].shape)
+        q.S[1:] += 1e2 * np.eye(2) * rng.uniform(0, 1, (K - offset, 1, 1))
+        q.lam = q.lam * np.exp(0.05 * rng.normal(size=q.lam.shape))
+        q = short_model.tighten(q)
+        zv, zs = view.pack(q), short.pack(q)
+        pv, ps = view.anchor(q), short.anchor(q)
+        for a, b in zip(view.margin_values(zv), short.margin_values(zs)):
+            np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7)
+        for a, b in zip(view.parts(zv, pv), short.parts(zs, ps)):
+            assert float(a) == pytest.approx(float(b), rel=1e-9, abs=1e-12)
+        gv = view.source_g(np.asarray(ca.Function("g", [view.z, view.p], [view.g])(zv, pv)).ravel())
+        gs = np.asarray(ca.Function("g", [short.z, short.p], [short.g])(zs, ps)).ravel()
+        n_rows = short.n_collision + short.info["n_target"]
+        np.testing.assert_allclose(gv[:n_rows], gs[:n_rows], rtol=1e-7, atol=1e-7)
+        t = len(short.info["tri"])
+        np.testing.assert_allclose(gv[n_rows:n_rows + t], 0.0, atol=1e-9)       # Q_{offset+1} = (P0 + W)^-1
+        np.testing.assert_allclose(gv[n_rows + t:], gs[n_rows:], rtol=1e-7, atol=1e-9)
+        f_view = float(ca.Function("f", [view.z, view.p], [view.f])(zv, pv))
+        f_short = float(ca.Function("f", [short.z, short.p], [short.f])(zs, ps))
+        gaps.append(f_view - f_short)
+        back = view.unpack(zv)
+        np.testing.assert_allclose(back.x, q.x, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(back.S[1:], q.S[1:], rtol=1e-9, atol=1e-9)
+    assert np.ptp(gaps) < 1e-10 * max(1.0, abs(gaps[0]))
+    # the frozen variables are the prefix's; the free ones the shorter problem's and M_{offset+1}
+    free = view.lbz < view.ubz
+    assert free.sum() == (short.lbz < short.ubz).sum() + len(short.info["tri"])
+
+
+def test_a_prefix_that_cannot_be_frozen_is_refused(plan10):
+    """A floored ("logchol") prefix needs P0^-1 > floor^2 I; a risk budget's
+    levels depend on the horizon."""
+    sc, previous = plan10
+    K = previous.path.K
+    nlp = build_nlp(BeliefModel(sc, K, 1.0), "logchol", floor=10.0)      # scaled units: P0 = W is 1
+    wide = sc.with_options(P0=sc.W)
+    with pytest.raises(bn.ValidationError) as err:
+        frozen(nlp, BeliefModel(wide, K - 1, 1.0), 1)
+    assert err.value.field == "resume"
+    with pytest.raises(bn.ValidationError):
+        frozen(nlp, BeliefModel(sc, K - 2, 1.0), 1)           # horizons that do not add up
+    with pytest.raises(bn.ValidationError):
+        frozen(nlp, BeliefModel(sc, K - 1, 1.0, risk=RiskBudget(0.05)), 1)
+
+
+def test_a_receding_loop_reuses_the_graph_and_answers_as_a_fresh_horizon(plan10):
+    """Three executed steps, one at a time: each re-plan resumes on the
+    K = 10 graph (nothing built), answers as the re-plan that builds the
+    shorter horizon from the re-anchored path (cost to 1e-6), in fewer
+    iterations, verified and no costlier than its warm start."""
+    sc, previous = plan10
+    rng = np.random.default_rng(0)
+    K = previous.path.K
+    for step in range(1, 4):
+        moved = _moved(sc, previous, 1, rng)
+        r = bn.replan(moved, previous, advance=1, **KW)
+        ref = bn.replan(moved, dataclasses.replace(previous, resume=None), advance=1, **KW)
+        assert r.stats["resumed"] == "yes" and ref.stats["resumed"] == "no"
+        assert r.stats["build"] in ("memory", "built (derivatives shared)")
+        assert r.status == "converged" and r.safe and bn.verify(moved, r.path).safe
+        assert r.path.K == K - step and r.cost <= r.initial_cost
+        np.testing.assert_allclose(r.path.x[0], moved.x0, rtol=1e-15, atol=0)
+        assert r.cost == pytest.approx(ref.cost, rel=1e-6)
+        assert r.nit < ref.nit
+        assert r.resume["offset"] == step            # the next re-plan freezes one more step
+        previous = r
+
+
+def test_two_steps_at_once(plan10):
+    """advance = 2 freezes two steps at once."""
+    sc, previous = plan10
+    moved = _moved(sc, previous, 2, np.random.default_rng(1))
+    r = bn.replan(moved, previous, advance=2, **KW)
+    assert r.stats["resumed"] == "yes" and r.status == "converged" and bn.verify(moved, r.path).safe
+    assert r.cost == pytest.approx(bn.replan(moved, dataclasses.replace(previous, resume=None), advance=2,
+                                             **KW).cost, rel=1e-6)
+
+
+def test_when_the_frozen_solve_fails_the_shorter_horizon_is_built(plan10, resume_fails):
+    """The usual first stage runs on the shorter horizon's own graph."""
+    sc, previous = plan10
+    moved = _moved(sc, previous, 2, np.random.default_rng(1))
+    ref = bn.replan(moved, dataclasses.replace(previous, resume=None), advance=2, **KW)
+    back = bn.replan(moved, previous, advance=2, **KW)
+    assert back.stats["resumed"] == "fell back" and back.status == "converged" and back.safe
+    assert back.resume["offset"] == 0                # the state of the graph that answered
+    assert back.cost == pytest.approx(ref.cost, rel=1e-6)
+
+
+def test_under_a_risk_budget_a_receding_replan_builds_its_horizon(plan10):
+    """A risk budget's levels depend on the number of pairs: the longer
+    graph does not fit, the re-plan builds its own (and answers)."""
+    sc, _ = plan10
+    risk = RiskBudget(0.05, allocation="uniform")
+    x = densify(PAPER_MULTI_WAYPOINTS, 2)
+    path = bn.BeliefPath.from_sensing(x, sc.P0, np.broadcast_to(1e4 * np.eye(2), (x.shape[0] - 1, 2, 2)), W=sc.W)
+    previous = bn.smooth(sc, path, risk=risk, **KW)
+    assert previous.resume is not None
+    moved = _moved(sc, previous, 1, np.random.default_rng(2))
+    r = bn.replan(moved, previous, advance=1, risk=risk, **KW)
+    assert r.stats["resumed"] == "does not fit" and r.status == "converged"
+    assert bn.verify(moved, r.path).safe and r.risk is not None
