@@ -17,12 +17,17 @@ def run_and_record(run_case: Callable[[dict], dict], cases: list[dict], summaris
                    args, out: Path, workers: int) -> dict:
     """``run_case`` over ``cases`` in ``workers`` processes, ``summarise`` of the
     records; writes ``out`` and prints the table. Returns the document."""
-    import belief_nlp as bn
-
     t0, load0 = time.time(), os.getloadavg()
     with ProcessPoolExecutor(workers) as ex:
         records = list(ex.map(run_case, cases))
-    table = summarise(records)
+    return write_record(out, args, summarise(records), records, t0, load0)
+
+
+def write_record(out: Path, args, table: dict, records: list, t0: float, load0: tuple) -> dict:
+    """Write one record to ``out`` (started at ``time.time()`` ``t0`` with load
+    averages ``load0``) and print its table. Returns the document."""
+    import belief_nlp as bn
+
     doc = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "load_start": load0,
                        "load_end": os.getloadavg()}, "version": bn.__version__, "wall_total": time.time() - t0,
            "args": vars(args) | {"out": str(out)}, "table": table, "records": records}

@@ -25,15 +25,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
 import belief_nlp as bn
+from _record import write_record
 from belief_nlp.methods.nlp_build import clear_cache
 from belief_nlp.model.cache import MEMORY
 
@@ -121,12 +120,7 @@ def main() -> None:
             "statuses_path": {s: int(sum(b["status"] == s for b in pa)) for s in sorted({b["status"] for b in pa})},
             "infeasible_starts": int(sum(r["frozen"][-1]["status"] == "infeasible_start" for r in rows if r["frozen"])),
         }
-    doc = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "load_start": load0,
-                       "load_end": os.getloadavg()}, "version": bn.__version__, "wall_total": time.time() - t0,
-           "args": vars(args) | {"out": str(args.out)}, "table": table, "records": records}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(doc, indent=1, default=str))
-    print(json.dumps(table, indent=1))
+    write_record(args.out, args, table, records, t0, load0)
 
 
 if __name__ == "__main__":
