@@ -162,3 +162,64 @@ def test_under_a_risk_budget_a_receding_replan_builds_its_horizon(plan10):
     r = bn.replan(moved, previous, advance=1, risk=risk, **KW)
     assert r.stats["resumed"] == "does not fit" and r.status == "converged"
     assert bn.verify(moved, r.path).safe and r.risk is not None
+
+
+@pytest.mark.parametrize("offset", [1, 3])
+def test_the_frozen_conic_step_answers_as_the_shorter_horizons_own(plan10, offset):
+    """The longer CCP step with its prefix frozen, at a point of the shorter
+    problem, is a step of the shorter problem: its answer (every pair kept,
+    and the active-set step's pairs) is proven clear by its certificates,
+    lowers the cost, and lands where the shorter horizon's own step lands
+    (means to 1e-5, cost to 1e-5 relative). Not bit for bit: the longer step
+    holds transition 1's start end in the generic majorised form (its split
+    term also weighs the certificates' change), the shorter one exactly
+    (C8); both are majorants tight at the point, so CCP's fixed points are
+    the same (the polish test below)."""
+    from belief_nlp.geometry import PolytopeSet
+    from belief_nlp.methods.ccp import active_pairs, initial_rho
+    from belief_nlp.model.conic_form import conic_step
+    from belief_nlp.model.conic_prefix import frozen_conic
+
+    sc, previous = plan10
+    K = previous.path.K
+    moved = _moved(sc, previous, offset, np.random.default_rng(10 + offset))
+    long_model, short_model = BeliefModel(sc, K, 1.0), BeliefModel(moved, K - offset, 1.0)
+    view = frozen_conic(conic_step(long_model.convex_form), short_model.data, offset)
+    own = conic_step(short_model.convex_form)
+    ws = bn.warm_start(moved, bn.reanchor(moved, previous, advance=offset), sensing="path")
+    q = short_model.tighten(short_model.from_path(ws.path, ws.lam))
+    rho = initial_rho(short_model, q)
+    hazards = PolytopeSet.cached([(h.A, h.b / short_model.data.sigma) for h in moved.hazards])
+    keeps = [np.ones(short_model.data.K * short_model.data.J, bool), active_pairs(short_model, q, hazards)]
+    assert not keeps[1].all()
+    for keep in keeps:
+        st_v, z_v, _, _ = view.solve(q, rho, rho, keep)
+        st_o, z_o, _, _ = own.solve(q, rho, rho, keep)
+        assert st_v == st_o == "optimal"
+        a, b = view.layout.extract(z_v, q), own.layout.extract(z_o, q)
+        np.testing.assert_allclose(a.x, b.x, rtol=1e-5, atol=1e-9)       # scaled units: x ~ 10-50
+        start, end = short_model.transition_margins(short_model.tighten(a))
+        assert min(start.min(), end.min()) >= -1e-6 * short_model.data.chi2
+        ca_, cb = short_model.cost(short_model.tighten(a))[0], short_model.cost(short_model.tighten(b))[0]
+        assert ca_ == pytest.approx(cb, rel=1e-5)
+        assert ca_ < short_model.cost(q)[0]               # a step that lowers the cost, not the point itself
+
+
+def test_autos_ccp_polish_in_a_receding_replan_uses_the_frozen_step(plan10):
+    """auto's CCP polish after a frozen IPOPT stage uses the longer horizon's
+    conic step (nothing built for the shorter one) and answers as the
+    polish on the shorter horizon's own step (cost to 1e-6)."""
+    from belief_nlp.model.cache import MEMORY
+
+    sc, previous = plan10
+    first = bn.smooth(sc, previous.path, method="auto", alpha=1.0)
+    moved = _moved(sc, first, 1, np.random.default_rng(3))
+    r = bn.replan(moved, first, advance=1, alpha=1.0)
+    assert r.stats["ipopt"]["resumed"] == "yes" and r.stats["ccp"]["frozen"] == 1
+    # the frozen step answered (its answers were taken, not left to IPOPT's point)
+    assert r.stats["ccp"]["steps"] and all((s["solver"] or "").startswith("CLARABEL") for s in r.stats["ccp"]["steps"])
+    assert r.status == "converged" and bn.verify(moved, r.path).safe
+    MEMORY.clear()                                     # the longer step gone: the polish builds its own
+    own = bn.replan(moved, first, advance=1, alpha=1.0)
+    assert own.stats["ccp"]["frozen"] == 0
+    assert r.cost == pytest.approx(own.cost, rel=1e-6)

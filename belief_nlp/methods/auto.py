@@ -90,7 +90,9 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
                 return Outcome("converged", f"IPOPT: {first.message}", chk.point, "IPOPT", _totals(stats, "ipopt"),
                                "auto:ipopt", first.resume)
             problem.points[problem.iterations] = chk.point
-            second = _stage(problem, problem.iterations + ccp_polish, ccp.run, *ccp_opts, _start=chk.point)
+            # after executed steps (a re-plan solved on a longer graph) its conic step, frozen alike
+            second = _stage(problem, problem.iterations + ccp_polish, ccp.run, *ccp_opts, _start=chk.point,
+                            _prefix=int((first.resume or {}).get("offset", 0)))
             stats.update(ccp=second.stats, stages=["ipopt", "ccp polish"])
             # the driver picks the lowest-cost verified candidate: IPOPT's point or a polished one
             return Outcome("converged", f"IPOPT: {first.message}; CCP polish: {second.status}", None, "IPOPT+CCP",

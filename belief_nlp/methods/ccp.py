@@ -43,11 +43,14 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..errors import ValidationError
 from ..model import BeliefModel, Layout
 from ..model.data import psd_part
 from ..model.cache import MEMORY, DiskCache, disk_cache, problem_key
 from ..geometry.transitions import transition_minimiser
 from ..model.conic_form import ConicStep, conic_step
+from ..model.conic_prefix import FrozenConic, frozen_conic
+from ..model.nlp_prefix import longer
 from ..model.cvxpy_form import CompiledProblem, compile_problem, usable_solvers
 from .ccp_cascade import (SOLVER_DEFAULTS, LazyCascade, _check_solver, _check_solver_options, _checked, _solve,
                           _StepAnswers, solver_cascade)
@@ -122,6 +125,17 @@ def conic_step_of(model: BeliefModel, cache_dir: str | Path | bool | None = None
     return _for_model(hit, model)
 
 
+def _frozen_step(model: BeliefModel, prefix: int) -> FrozenConic | None:
+    """The active-set step of the horizon ``prefix`` steps longer, with those
+    steps frozen at the model's start, when that step is in memory (a
+    re-plan's previous answer built it); None otherwise."""
+    try:
+        hit = MEMORY.get(problem_key(longer(model, prefix).data, CHI2_MARGIN, "CLARABEL-direct"))
+        return frozen_conic(hit, model.data, prefix) if isinstance(hit, ConicStep) else None
+    except ValidationError:
+        return None
+
+
 def _for_model(step, model: BeliefModel):
     """A cached step (compiled for any alpha and start belief: both are its
     parameters) as ``model``'s: the same compiled problem, a layout with
@@ -188,12 +202,15 @@ def _adapt_rho(model: BeliefModel, z: Layout, z_new: Layout, rho_s: np.ndarray, 
 def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | None = None,
         cache_dir: str | Path | bool | None = None, constraints: Callable | None = None,
         hook: Callable | None = None, accelerate: bool = True, active_set: bool = True,
-        _fail_at: int | None = None, _start: Layout | None = None) -> Outcome:
+        _fail_at: int | None = None, _start: Layout | None = None, _prefix: int = 0) -> Outcome:
     """CCP from the problem's start (see the module doc and :data:`METHOD`).
 
     ``_start`` (for composite methods): continue from this exactly safe point
     instead; iterations are numbered after the problem's history and count
-    against the same ``max_iter``."""
+    against the same ``max_iter``. ``_prefix`` > 0 (a re-plan after that
+    many executed steps): the active-set step is the one of the horizon
+    ``_prefix`` steps longer, when it is in memory, with those steps frozen
+    (:mod:`belief_nlp.model.conic_prefix`), and no CVXPY step follows it."""
     model, D = problem.model, problem.model.data
     solver = (problem.solver or "CLARABEL").upper()
     _check_solver_options(solver, problem.solver_options)
@@ -212,13 +229,15 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         stats["build_time"] = time.perf_counter() - t_build
         return step_
 
-    conic = None
+    conic, frozen = None, None
     if use_active:
         # the CVXPY step is compiled only when a step needs it (an answer the
         # active-set step cannot give): most runs never do (0.3-0.7 s saved)
         t0 = time.perf_counter()
-        conic = conic_step_of(model, cache_dir)
+        frozen = _frozen_step(model, _prefix) if _prefix else None
+        conic = frozen or conic_step_of(model, cache_dir)
         stats["active_set_build_time"] = time.perf_counter() - t0
+        stats["frozen"] = _prefix if frozen is not None else 0
         step = _LazyStep(conic.layout, build_step)
     else:
         step = build_step()
@@ -246,7 +265,8 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         # only when neither answer is taken
         lib = {**SOLVER_DEFAULTS["CLARABEL"], **problem.solver_options}
         cascade = LazyCascade([("CLARABEL", "active set", lib), ("CLARABEL", "full step", lib)],
-                              lambda: solver_cascade(solver, problem.solver_options, budget=budget))
+                              (lambda: []) if frozen is not None   # the CVXPY step is of the shorter horizon
+                              else lambda: solver_cascade(solver, problem.solver_options, budget=budget))
     prox: dict = {}            # the proximal step: compiled on first use; not with a hook's own constraints
     held: dict = {"keep": None}
 

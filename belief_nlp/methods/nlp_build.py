@@ -6,7 +6,6 @@ derivative functions are loaded from an earlier process instead of built
 
 from __future__ import annotations
 
-import functools
 import hashlib
 from typing import Any
 
@@ -16,7 +15,7 @@ from ..errors import ValidationError
 from ..model.cache import MODEL_REVISION, MemoryCache, compile_enabled, disk_cache, problem_key
 from ..model.evaluate import BeliefModel
 from ..model.nlp_form import NLPProblem, build_nlp
-from ..model.nlp_prefix import frozen
+from ..model.nlp_prefix import frozen, longer
 from . import nlp_compiled
 from .nlp_backend import NLPBackend
 from .nlp_recorder import Recorder
@@ -42,19 +41,6 @@ def _base_key(model: BeliefModel, formulation: str, margin: float, regularisatio
     and "logchol" are one graph, :meth:`NLPProblem.variant`)."""
     family = "cholesky|logchol" if formulation in ("cholesky", "logchol") else formulation
     return problem_key(model.data, margin, f"nlp:{family}:{regularisation}")
-
-
-@functools.lru_cache(maxsize=4)
-def longer(model: BeliefModel, prefix: int) -> BeliefModel:
-    """``model`` with ``prefix`` more steps (its scenario, start and alpha):
-    the graph a re-plan after ``prefix`` executed steps is solved on
-    (:func:`belief_nlp.model.nlp_prefix.frozen`). Without a risk budget: its
-    levels depend on the horizon."""
-    if not prefix:
-        return model
-    if model.risk_budget is not None:
-        raise ValidationError("resume", "a re-plan under a risk budget cannot be read on a longer horizon")
-    return BeliefModel(model.scenario, model.data.K + prefix, model.data.alpha)
 
 
 def _nlp(model: BeliefModel, formulation: str, margin: float, regularisation: float, floor: float,

@@ -21,7 +21,10 @@ class ConeFamily:
     ||y|| <= t (length ``dim``); exp: (a, b, c) with b exp(a / b) <= c; nonneg:
     one entry per cone. ``owner``: per cone, the (transition, hazard) pair it
     belongs to as k * J + j (0-based transition k), -1 for cones of no pair
-    (the active-set step, :mod:`.conic_form`, leaves far pairs out)."""
+    (the active-set step, :mod:`.conic_form`, leaves far pairs out). ``step``:
+    per cone of no pair, the step k (1..K) of the quantities it constrains
+    (sensing, Kalman, log-det cones; a frozen prefix, :mod:`.conic_prefix`,
+    leaves those of its steps out), None for the others."""
 
     name: str
     kind: str
@@ -29,6 +32,7 @@ class ConeFamily:
     batch: int
     expr: ca.SX
     owner: np.ndarray | None = None
+    step: np.ndarray | None = None
 
 
 _PADDED: tuple = (None, None)    # (z, vertcat(z, 0)) of the last call: a step's build picks from one z

@@ -58,8 +58,9 @@ class ConicStep:
 
     A (m, n) CSC: ``A.data = bincount(a_slot, a_const + a_weight * coef(p))``;
     b = bincount(b_row, b_const + b_weight * offset(p)); q = q0 + scatter(q(p)).
-    ``cones``: (kind, dim, first row, rows, owner pair); ``col_owner``: the pair
-    each variable belongs to (-1: none)."""
+    ``cones``: (kind, dim, first row, rows, owner pair, step of a cone of no
+    pair or -1: :attr:`.cones.ConeFamily.step`); ``col_owner``: the pair each
+    variable belongs to (-1: none)."""
 
     layout: StepLayout
     P: sp.csc_matrix
@@ -98,19 +99,24 @@ class ConicStep:
         return A, b, q
 
     def solve(self, point: Layout, rho_start: np.ndarray, rho_end: np.ndarray, keep: np.ndarray,
-              settings: dict | None = None, time_left: float | None = None) -> tuple[str, np.ndarray | None, float, int]:
+              settings: dict | None = None, time_left: float | None = None,
+              frozen: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[str, np.ndarray | None, float, int]:
         """Solve with only the pairs ``keep`` (bool, K x J flattened as k * J + j)
         and the cones of no pair; the other pairs' variables stay at the point's
-        values (:meth:`StepLayout.point_vector`). Returns (status in CVXPY's
-        words, z or None, solve time, iterations)."""
+        values (:meth:`StepLayout.point_vector`). ``frozen``: (variables, cones)
+        masks also held at the point and left out (a frozen prefix,
+        :mod:`.conic_prefix`). Returns (status in CVXPY's words, z or None,
+        solve time, iterations)."""
         import clarabel
 
         A, b, q = self.data(point, rho_start, rho_end)
         zp = self.layout.point_vector(point)
         keep = np.asarray(keep, bool).ravel()
         free = (self.col_owner < 0) | keep[np.maximum(self.col_owner, 0)]
-        kind, dim, first, n_rows, owner = self.cones
+        kind, dim, first, n_rows, owner, _ = self.cones
         on = (owner < 0) | keep[np.maximum(owner, 0)]
+        if frozen is not None:
+            free, on = free & ~frozen[0], on & ~frozen[1]
         rows = np.repeat(first[on] - np.cumsum(n_rows[on]) + n_rows[on], n_rows[on]) + np.arange(n_rows[on].sum())
         Ar = A.tocsr()[rows]
         fixed = ~free
@@ -166,7 +172,7 @@ def conic_step(form: ConvexForm) -> ConicStep:
     n = B.n
     a_r, a_c, a_v, p_r, p_c, p_w, coefs = [], [], [], [], [], [], []
     b_r, b_v, o_r, o_w, offs = [], [], [], [], []
-    kinds, dims, firsts, counts, owners = [], [], [], [], []
+    kinds, dims, firsts, counts, owners, steps = [], [], [], [], [], []
     row0 = 0
     for fam in form.families:
         split = split_affine(fam.expr, form.z, form.p)
@@ -190,6 +196,7 @@ def conic_step(form: ConvexForm) -> ConicStep:
         firsts.append(row0 + np.arange(fam.batch) * per_cone)
         counts.append(np.full(fam.batch, per_cone))
         owners.append(np.full(fam.batch, -1) if fam.owner is None else np.asarray(fam.owner, int))
+        steps.append(np.full(fam.batch, -1) if fam.step is None else np.asarray(fam.step, int))
         row0 += fam.batch * per_cone
     m = row0
     rows = np.concatenate(a_r + p_r)
@@ -202,7 +209,7 @@ def conic_step(form: ConvexForm) -> ConicStep:
     return ConicStep(form.layout, P, quad.q0, quad.q_rows, (m, n), (key % m).astype(np.int64), indptr, slot.ravel(),
                      np.concatenate(a_v), np.concatenate(p_w), np.concatenate(b_r + o_r),
                      np.concatenate(b_v), np.concatenate(o_w), fn,
-                     [np.concatenate(a) for a in (kinds, dims, firsts, counts, owners)],
+                     [np.concatenate(a) for a in (kinds, dims, firsts, counts, owners, steps)],
                      form.layout.variable_owners())
 
 

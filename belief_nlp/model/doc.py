@@ -384,27 +384,31 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7, proximal: float = 0.0
 
     fam: list[ConeFamily] = []
 
-    def add(name: str, kind: str, dim: int, items: list, owner: np.ndarray | None = None) -> None:
+    def add(name: str, kind: str, dim: int, items: list, owner: np.ndarray | None = None,
+            step: np.ndarray | None = None) -> None:
         if items:
-            fam.append(ConeFamily(name, kind, dim, len(items), ca.vertcat(*[ca.vec(e.T) for e in items]), owner))
+            fam.append(ConeFamily(name, kind, dim, len(items), ca.vertcat(*[ca.vec(e.T) for e in items]), owner,
+                                  None if step is None else np.asarray(step, int)))
 
     lam_idx = B.lam[B.lam >= 0]
     lam_owner = np.nonzero(B.lam >= 0)                 # (k, j, f) of each entry, in lam_idx's order
     fam.append(ConeFamily("lam_nonneg", "nonneg", 1, lam_idx.size, _pick(z, lam_idx[:, None]),
                           lam_owner[0] * J + lam_owner[1]))
-    add("sensing_psd", "psd", d, [S[k] for k in range(1, K + 1)])
+    add("sensing_psd", "psd", d, [S[k] for k in range(1, K + 1)], step=np.arange(1, K + 1))
     Winv = ca.DM(np.linalg.inv(D.W))
-    add("kalman_lmi", "psd", 2 * d, [terms.kalman_lmi(Q[k], Y[k - 1], Winv) for k in range(2, K + 1)])
+    add("kalman_lmi", "psd", 2 * d, [terms.kalman_lmi(Q[k], Y[k - 1], Winv) for k in range(2, K + 1)],
+        step=np.arange(2, K + 1))
     Zk = {k: _pick(z, B.Z[k]) for k in range(2, K + 1)}
-    add("logdet_lmi", "psd", 2 * d, [terms.logdet_epigraph_lmi(Q[k], Zk[k]) for k in range(2, K + 1)])
+    add("logdet_lmi", "psd", 2 * d, [terms.logdet_epigraph_lmi(Q[k], Zk[k]) for k in range(2, K + 1)],
+        step=np.arange(2, K + 1))
     add("logdet_exp", "exp", 3, [ca.vertcat(z[int(B.u[k, i])], 1, Zk[k][i, i])
-                                 for k in range(2, K + 1) for i in range(d)])
+                                 for k in range(2, K + 1) for i in range(d)], step=np.repeat(np.arange(2, K + 1), d))
 
     if D.continuous:
         # continuous surrogate: T_k <= (Q_{k-1}^-1 + W)^-1 (the Kalman LMI's form, k >= 3;
         # T_1 = Q_1 and T_2 = (P0 + 2 W)^-1 are constants)
         add("surrogate_lmi", "psd", 2 * d, [terms.kalman_lmi(_pick(z, B.T[k]), Q[k - 1], Winv)
-                                            for k in range(3, K + 1)])
+                                            for k in range(3, K + 1)], step=np.arange(3, K + 1))
 
     # collision constraints: h1 exactly, h2 with the bilinear term convexified;
     # one pair function mapped over every (transition, hazard) end

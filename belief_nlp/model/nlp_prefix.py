@@ -32,6 +32,8 @@ budget's levels depend on the number of transition-hazard pairs.
 
 from __future__ import annotations
 
+import functools
+
 import casadi as ca
 import numpy as np
 
@@ -40,7 +42,21 @@ from .data import Layout
 from .evaluate import BeliefModel
 from .nlp_form import NLPProblem
 
-__all__ = ["frozen"]
+__all__ = ["frozen", "longer"]
+
+
+@functools.lru_cache(maxsize=4)
+def longer(model: BeliefModel, prefix: int) -> BeliefModel:
+    """``model`` with ``prefix`` more steps (its scenario, start and alpha):
+    the horizon whose forms a re-plan after ``prefix`` executed steps is
+    solved on, with those steps frozen (:func:`frozen`,
+    :func:`.conic_prefix.frozen_conic`). Without a risk budget: its levels
+    depend on the horizon."""
+    if not prefix:
+        return model
+    if model.risk_budget is not None:
+        raise ValidationError("resume", "a re-plan under a risk budget cannot be read on a longer horizon")
+    return BeliefModel(model.scenario, model.data.K + prefix, model.data.alpha)
 
 
 def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
