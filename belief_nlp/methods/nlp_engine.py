@@ -57,7 +57,8 @@ from ..smoother.registry import Option
 from ..smoother.result import STATUSES, IterationRecord
 from .nlp_backend import NLPBackend
 from . import nlp_resume
-from .nlp_build import _CACHE, _GRAPHS, _base_key, clear_cache, longer, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
+from ..model.nlp_prefix import longer
+from .nlp_build import _CACHE, _GRAPHS, _base_key, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
 from .nlp_recorder import Recorder
 
 __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
@@ -178,9 +179,11 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         t_solve, c_solve, log_at = time.perf_counter(), time.process_time(), _log_size(recorder.log_path)
         try:
             x0, lbx, ubx = bounds(nlp, z_start) if bounds else (nlp.pack(z_start), nlp.lbz, nlp.ubz)
-            # a row without bounds (a frozen step's, nlp_prefix) starts without a multiplier
-            warm = {"lam_x0": duals[0], "lam_g0": np.where(np.isfinite(nlp.lbg) | np.isfinite(nlp.ubg), duals[1], 0.0)} \
-                if duals is not None and n_attempts == 0 else {}
+            warm = {}
+            if duals is not None and n_attempts == 0:
+                # a row without bounds (a frozen step's, nlp_prefix) starts without a multiplier
+                bounded = np.isfinite(nlp.lbg) | np.isfinite(nlp.ubg)
+                warm = {"lam_x0": duals[0], "lam_g0": np.where(bounded, duals[1], 0.0)}
             with backend.solving():
                 sol = solver(x0=x0, p=pv, lbx=lbx, ubx=ubx, lbg=nlp.lbg, ubg=nlp.ubg, **warm)
             z_end = np.asarray(sol["x"]).ravel()
@@ -327,8 +330,8 @@ def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts:
     try:
         return _solve_stage(problem, backend, _Stage(), formulation="logchol", floor=floor, opts={**opts, **own},
                             start=problem.start, max_iter=min(max_iter, RESUME_LIMIT * problem.model.data.K),
-                            restarts=0, offset=problem.iterations, bounds=bounds, duals=(resume["lam_x"], resume["lam_g"]),
-                            prefix=prefix, **common)
+                            restarts=0, offset=problem.iterations, bounds=bounds,
+                            duals=(resume["lam_x"], resume["lam_g"]), prefix=prefix, **common)
     except ValidationError as exc:
         if exc.field != "resume":
             raise

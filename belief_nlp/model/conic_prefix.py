@@ -13,8 +13,12 @@ step already holds far pairs:
   log-det; :attr:`.cones.ConeFamily.step`) and their pairs' cones left out;
 - the Kalman LMI of step offset + 1 then bounds Q_{offset+1} by
   (P0 + W)^-1, the shorter step's Q_1, and the start end of transition
-  offset + 1 sees Y_offset = P0^-1 (Eq. (13), C7; the shorter step's first
-  start end in its exact form, C8, is the same constraint at a fixed mean);
+  offset + 1 sees Y_offset = P0^-1 (C7). The shorter step holds that end
+  exactly (C8); here it is a generic pair, whose majorant's split term also
+  weighs the certificates' change: a majorant tight at the point all the
+  same, so each step is safe and monotone and CCP's fixed points are the
+  shorter step's, but a step's answer differs a little (means within 1e-5
+  relative in the tests);
 - the prefix's objective terms are constants.
 
 Not under a risk budget or the continuous-time surrogate (their levels and
@@ -92,7 +96,8 @@ class FrozenConic:
     frozen: tuple[np.ndarray, np.ndarray]        # (variables, cones) of the prefix
 
     def solve(self, point: Layout, rho_start: np.ndarray, rho_end: np.ndarray, keep: np.ndarray,
-              settings: dict | None = None, time_left: float | None = None) -> tuple[str, np.ndarray | None, float, int]:
+              settings: dict | None = None,
+              time_left: float | None = None) -> tuple[str, np.ndarray | None, float, int]:
         off, J = self.layout.offset, self.layout.data.J
         pad = np.ones((off, J))
         keep = np.concatenate([np.zeros(off * J, bool), np.asarray(keep, bool).ravel()])

@@ -22,7 +22,7 @@ frozen at the new start belief (x0, P0), their rows switched off:
   frozen variables fixed by equal bounds (IPOPT's ``fixed_variable_treatment``
   removes them); the target rows stay: the goal is still reached at step K.
 
-The rest of the NLP is the shorter problem's, term by term (Eq. (11)-(13)),
+The rest of the NLP is the shorter problem's, term by term (the objective, C5-C8),
 up to the constant information of the frozen steps, which ``parts`` takes
 off. So the earlier answer's variables and multipliers are a start for the
 re-plan on the graph and solver that are already built
