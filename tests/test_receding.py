@@ -138,15 +138,32 @@ def test_two_steps_at_once(plan10):
                                              **KW).cost, rel=1e-6)
 
 
-def test_when_the_frozen_solve_fails_the_shorter_horizon_is_built(plan10, resume_fails):
-    """The usual first stage runs on the shorter horizon's own graph."""
+def test_when_the_frozen_solve_fails_the_usual_stage_runs_on_the_same_graph(plan10, resume_fails):
+    """The usual first stage from the warm start follows on the frozen graph
+    (nothing built) and answers as the re-plan that builds the shorter
+    horizon; when the prefix cannot be frozen, the shorter horizon is built."""
     sc, previous = plan10
     moved = _moved(sc, previous, 2, np.random.default_rng(1))
     ref = bn.replan(moved, dataclasses.replace(previous, resume=None), advance=2, **KW)
     back = bn.replan(moved, previous, advance=2, **KW)
     assert back.stats["resumed"] == "fell back" and back.status == "converged" and back.safe
-    assert back.resume["offset"] == 0                # the state of the graph that answered
+    assert back.stats["build"] in ("memory", "built (derivatives shared)")
+    assert back.resume["offset"] == 2                # the state of the graph that answered
     assert back.cost == pytest.approx(ref.cost, rel=1e-6)
+    assert bn.verify(moved, back.path).safe
+
+
+def test_a_prefix_that_cannot_be_frozen_builds_the_shorter_horizon(plan10):
+    """A floored prefix needs P0^-1 > floor^2 I: with a floor that the start
+    covariance exceeds, the resume state does not fit and the re-plan builds
+    its horizon (and answers)."""
+    sc, previous = plan10
+    moved = _moved(sc, previous, 1, np.random.default_rng(4))
+    state = bn.smooth(sc, previous.path, method="ipopt", alpha=1.0, max_iter=3000, floor=30.0)
+    r = bn.replan(moved, state, advance=1, method="ipopt", alpha=1.0, max_iter=3000, floor=30.0)
+    assert r.stats["resumed"] == "does not fit" and (r.resume is None or r.resume["offset"] == 0)
+    # (such a floor is far from the answer's sensing: the status is the floor's business, the answer safe)
+    assert r.safe and bn.verify(moved, r.path).safe and r.cost <= r.initial_cost
 
 
 def test_under_a_risk_budget_a_receding_replan_builds_its_horizon(plan10):

@@ -282,11 +282,14 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
             before = _resumed(problem, backend, resume, opts, floor, max_iter, common, prefix)
             resumed = "does not fit" if before is None else "yes" if before.answer is not None else "fell back"
         if before is None or before.answer is None:
-            if prefix:      # the usual stage on the problem's own graph
+            # the usual stage from the warm start: on the frozen graph when the
+            # resumed solve ran there (nothing built), else on the problem's own
+            if prefix and before is None:
                 prefix, key = 0, _base_key(problem.model, formulation, margin, regularisation)
             first = _solve_stage(problem, backend, _Stage(), formulation=formulation, floor=floor, opts=opts,
                                  start=problem.start, max_iter=max_iter - (before.used if before else 0),
-                                 restarts=restarts, offset=problem.iterations, scale=scale_means, **common)
+                                 restarts=restarts, offset=problem.iterations, scale=scale_means, prefix=prefix,
+                                 **common)
             if before is not None:       # one stage in the stats: the resumed solve, then the usual one
                 first.attempts, first.used = before.attempts + first.attempts, before.used + first.used
         else:
