@@ -41,9 +41,11 @@ POLISH_IPOPT_OPTIONS: dict[str, Any] = {"mu_strategy": "monotone", "mu_init": 1e
                                         "warm_start_slack_bound_frac": 1e-9, "warm_start_mult_bound_push": 1e-9}
 
 #: a first stage resumed from an earlier answer's variables and multipliers
-#: (bn.replan): started from them, the barrier at 1e-6 (the answer is nearly
-#: optimal; IPOPT's first mu is ~1 otherwise: docs/numerics.md, "The start
-#: belief as a parameter, and re-planning")
+#: (bn.replan): started from them, pushed no further into the interior than
+#: 1e-9 (docs/numerics.md, "The start belief as a parameter, and
+#: re-planning"). mu_init matters only to a monotone barrier (a user's
+#: mu_strategy): under the default adaptive one 1e-4, 1e-6 and 1e-8 gave the
+#: same iterates (session 14, "A receding horizon on the longer graph")
 RESUME_IPOPT_OPTIONS: dict[str, Any] = {"warm_start_init_point": "yes", "mu_init": 1e-6,
                                         "warm_start_bound_push": 1e-9, "warm_start_bound_frac": 1e-9,
                                         "warm_start_slack_bound_push": 1e-9, "warm_start_slack_bound_frac": 1e-9,

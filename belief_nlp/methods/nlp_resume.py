@@ -4,8 +4,8 @@ A re-plan from a new start belief solves the same NLP graph as the earlier
 call with another parameter value (the start belief is a parameter,
 :mod:`belief_nlp.model.nlp_form`). The earlier answer's first-stage variables
 and multipliers are then a start that IPOPT converges from in a few
-iterations (``warm_start_init_point``, the barrier started small: the
-backend's ``resume_options``): 4-8 iterations instead of 35-118 from the
+iterations (``warm_start_init_point``, pushed no further into the
+interior than 1e-9: the backend's ``resume_options``): 4-8 iterations instead of 35-118 from the
 re-anchored path alone on paper-multi at K = 20 (docs/numerics.md, "The start
 belief as a parameter, and re-planning"). The engine keeps that state on the
 result (:attr:`belief_nlp.SmoothResult.resume`, in memory only) and
