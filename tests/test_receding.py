@@ -240,3 +240,11 @@ def test_autos_ccp_polish_in_a_receding_replan_uses_the_frozen_step(plan10):
     own = bn.replan(moved, first, advance=1, alpha=1.0)
     assert own.stats["ccp"]["frozen"] == 0
     assert r.cost == pytest.approx(own.cost, rel=1e-6)
+
+
+@pytest.mark.parametrize("offset", [-1, 1.0, True, "1"])
+def test_a_resume_state_with_a_bad_offset_is_our_error(plan10, offset):
+    sc, previous = plan10
+    with pytest.raises(bn.ValidationError) as err:
+        bn.smooth(sc, previous.path, resume={**previous.resume, "offset": offset}, **KW)
+    assert err.value.field == "resume"

@@ -4,10 +4,10 @@ A re-plan from a new start belief solves the same NLP graph as the earlier
 call with another parameter value (the start belief is a parameter,
 :mod:`belief_nlp.model.nlp_form`). The earlier answer's first-stage variables
 and multipliers are then a start that IPOPT converges from in a few
-iterations (``warm_start_init_point``, pushed no further into the
-interior than 1e-9: the backend's ``resume_options``): 4-8 iterations instead of 35-118 from the
-re-anchored path alone on paper-multi at K = 20 (docs/numerics.md, "The start
-belief as a parameter, and re-planning"). The engine keeps that state on the
+iterations (``warm_start_init_point``, pushed no further into the interior
+than 1e-9: the backend's ``resume_options``): 4-8 iterations instead of
+35-118 from the re-anchored path alone on paper-multi at K = 20
+(docs/numerics.md, "The start belief as a parameter, and re-planning"). The engine keeps that state on the
 result (:attr:`belief_nlp.SmoothResult.resume`, in memory only) and
 :func:`belief_nlp.replan` passes it back as the method option ``resume``.
 
@@ -56,9 +56,9 @@ def check(v: Any) -> str | None:
     """The ``resume`` option's check: None or a state of :func:`state`."""
     if v is None:
         return None
-    if not isinstance(v, dict) or set(v) != _KEYS or not isinstance(v["offset"], int) or v["offset"] < 0 \
-            or not all(
-            isinstance(v[k], np.ndarray) and v[k].ndim == 1 and np.all(np.isfinite(v[k])) for k in ("z", "lam_x",
-                                                                                                    "lam_g")):
+    arrays_ok = isinstance(v, dict) and set(v) == _KEYS and all(
+        isinstance(v[k], np.ndarray) and v[k].ndim == 1 and np.all(np.isfinite(v[k])) for k in ("z", "lam_x", "lam_g"))
+    offset_ok = arrays_ok and isinstance(v["offset"], int) and not isinstance(v["offset"], bool) and v["offset"] >= 0
+    if not offset_ok:
         return "must be None or a SmoothResult's resume state (SmoothResult.resume)"
     return None
