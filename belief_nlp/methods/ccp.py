@@ -219,7 +219,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     # the active-set step (Clarabel's own data, far pairs left out): without
     # user constraints and a risk budget, with Clarabel
     use_active = active_set and constraints is None and hook is None and D.budget is None and solver == "CLARABEL"
-    stats: dict[str, Any] = {}
+    stats: dict[str, Any] = {"frozen": 0}     # steps of a longer horizon frozen (_prefix)
 
     def build_step():
         t_build = time.perf_counter()
@@ -237,7 +237,8 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         frozen = _frozen_step(model, _prefix) if _prefix else None
         conic = frozen or conic_step_of(model, cache_dir)
         stats["active_set_build_time"] = time.perf_counter() - t0
-        stats["frozen"] = _prefix if frozen is not None else 0
+        if frozen is not None:
+            stats["frozen"] = _prefix
         step = _LazyStep(conic.layout, build_step)
     else:
         step = build_step()
