@@ -248,3 +248,21 @@ def test_a_resume_state_with_a_bad_offset_is_our_error(plan10, offset):
     with pytest.raises(bn.ValidationError) as err:
         bn.smooth(sc, previous.path, resume={**previous.resume, "offset": offset}, **KW)
     assert err.value.field == "resume"
+
+
+def test_a_receding_replan_in_three_dimensions():
+    """The frozen forms are dimension-generic: on cube3d (d = 3) a re-plan
+    after one executed step resumes on the longer graph and answers as the
+    re-plan that builds its horizon; auto's polish runs on the frozen conic
+    step."""
+    sc = bn.load_scenario("cube3d")
+    plan = bn.plan(sc, n_nodes=300, seed=0, noise="per_step")
+    previous = bn.smooth(sc, plan.path, K=10, **KW)
+    now = sc.with_options(x0=previous.path.x[1] + 2e-4, P0=0.8 * previous.path.P[1])
+    r = bn.replan(now, previous, advance=1, **KW)
+    ref = bn.replan(now, dataclasses.replace(previous, resume=None), advance=1, **KW)
+    assert r.stats["resumed"] == "yes" and r.nit < ref.nit
+    assert r.cost == pytest.approx(ref.cost, rel=1e-6) and bn.verify(now, r.path).safe
+    auto = bn.replan(now, bn.smooth(sc, plan.path, K=10, alpha=1.0), advance=1, alpha=1.0)
+    assert auto.stats["ipopt"]["resumed"] == "yes" and auto.stats["ccp"]["frozen"] == 1
+    assert bn.verify(now, auto.path).safe and auto.cost <= auto.initial_cost
