@@ -67,22 +67,11 @@ class _ShortLayout:
 
     def extend(self, point: Layout) -> Layout:
         """The longer step's point: the frozen prefix, then ``point``."""
-        off, D = self.offset, self.data
-        d = D.d
-        x = np.vstack([np.tile(D.x0, (off + 1, 1)), point.x[1:]])
-        Q = np.concatenate([np.zeros((1, d, d)), np.tile(self.P_inv, (off, 1, 1)), point.Q[1:]])
-        S = np.concatenate([np.zeros((off + 1, d, d)), point.S[1:]])
-        lam = np.concatenate([np.zeros((off,) + point.lam.shape[1:]), point.lam])
-        return Layout(x, Q, S, lam)
+        return point.with_prefix(self.offset, self.data.x0, self.P_inv)
 
     def extract(self, zv: np.ndarray, point: Layout) -> Layout:
         """The shorter problem's new point from the longer step's answer."""
-        off = self.offset
-        full = self.source.extract(zv, self.extend(point))
-        Q = np.concatenate([np.zeros((1,) + full.Q.shape[1:]), full.Q[off + 1:]])
-        Q[1] = self.data.Q1
-        S = np.concatenate([np.zeros((1,) + full.S.shape[1:]), full.S[off + 1:]])
-        return Layout(full.x[off:].copy(), Q, S, full.lam[off:].copy())
+        return self.source.extract(zv, self.extend(point)).tail(self.offset, self.data.Q1)
 
 
 @dataclass

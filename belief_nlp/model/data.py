@@ -128,6 +128,25 @@ class Layout:
         return Layout(self.x.copy(), self.Q.copy(), self.S.copy(), self.lam.copy(),
                       None if self.tau is None else self.tau.copy())
 
+    def with_prefix(self, offset: int, x0: np.ndarray, Q_prefix: np.ndarray) -> "Layout":
+        """This point after ``offset`` steps held at the mean ``x0`` with prior
+        information ``Q_prefix``, no sensing and no certificates (a frozen
+        prefix: :mod:`.nlp_prefix`, :mod:`.conic_prefix`; without levels)."""
+        d = self.x.shape[1]
+        return Layout(np.vstack([np.tile(x0, (offset + 1, 1)), self.x[1:]]),
+                      np.concatenate([np.zeros((1, d, d)), np.tile(Q_prefix, (offset, 1, 1)), self.Q[1:]]),
+                      np.concatenate([np.zeros((offset + 1, d, d)), self.S[1:]]),
+                      np.concatenate([np.zeros((offset,) + self.lam.shape[1:]), self.lam]))
+
+    def tail(self, offset: int, Q1: np.ndarray) -> "Layout":
+        """The steps after the first ``offset`` as a point of their own, its
+        fixed Q_1 = ``Q1`` (the inverse of :meth:`with_prefix`)."""
+        d = self.x.shape[1]
+        Q = np.concatenate([np.zeros((1, d, d)), self.Q[offset + 1:]])
+        Q[1] = Q1
+        return Layout(self.x[offset:].copy(), Q, np.concatenate([np.zeros((1, d, d)), self.S[offset + 1:]]),
+                      self.lam[offset:].copy(), None if self.tau is None else self.tau[offset:].copy())
+
 
 def sym(M: np.ndarray) -> np.ndarray:
     """Symmetric part of a (batch of) square matrices."""

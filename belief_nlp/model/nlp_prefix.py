@@ -33,6 +33,9 @@ budget's levels depend on the number of transition-hazard pairs.
 from __future__ import annotations
 
 import functools
+import weakref
+from dataclasses import dataclass
+from typing import Callable
 
 import casadi as ca
 import numpy as np
@@ -41,6 +44,7 @@ from ..errors import ValidationError
 from .data import Layout
 from .evaluate import BeliefModel
 from .nlp_form import NLPProblem
+from .ocp_form import stage_labels
 
 __all__ = ["frozen", "longer"]
 
@@ -86,21 +90,18 @@ def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
     # the information of a frozen step: 1/2 (log det Y_k - log det Q_k), Y_k = P0^-1
     info_pre = offset * 0.5 * (np.linalg.slogdet(P_inv)[1] - start[-1])
 
-    # the frozen variables and their values (z: X (d, K), L (t, K), M (t, K - 1), lam (n_lam, K), column-major)
-    nX, nS, nM = d * K, t * K, t * (K - 1)
-    n_lam = (int(nlp.z.shape[0]) - nX - nS - nM) // K
+    # the frozen variables: those of steps 1..offset (x_k, L_k, M_k, lam_k by the
+    # NLP's own step labels), in z's order: the means, the factors L, the M, the certificates
+    steps = _steps(nlp)
+    idx = np.flatnonzero((steps >= 1) & (steps <= offset))
     ti, tj = [i for i, _ in tri], [j for _, j in tri]
-    sens = L_pre[ti, tj]
-    if nlp.formulation == "logchol":
-        sens = np.where(np.equal(ti, tj), np.log(floor), sens)
-    m_pre = np.linalg.cholesky(Q_pre)[ti, tj]
-    idx = np.concatenate([np.arange(nX)[:d * offset], nX + np.arange(t * offset),
-                          nX + nS + np.arange(t * (offset - 1)), nX + nS + nM + np.arange(n_lam * offset)])
-    vals = np.concatenate([np.tile(D.x0, offset), np.tile(sens, offset), np.tile(m_pre, offset - 1),
-                           np.zeros(n_lam * offset)])
+    sens = np.where(np.equal(ti, tj), np.log(floor), 0.0) if nlp.formulation == "logchol" else np.zeros(t)
+    vals = np.concatenate([np.tile(D.x0, offset), np.tile(sens, offset),
+                           np.tile(np.linalg.cholesky(Q_pre)[ti, tj], offset - 1)])
+    vals = np.concatenate([vals, np.zeros(idx.size - vals.size)])           # the certificates: 0
     lbz, ubz = nlp.lbz.copy(), nlp.ubz.copy()
     lbz[idx] = ubz[idx] = vals
-    # rows off: collision rows of transitions 1..offset, Kalman rows of steps 2..offset
+    # rows off: collision rows of transitions 1..offset (ordered (k, j, start/end)), Kalman rows of steps 2..offset
     n_col_k = nlp.n_collision // K
     kal0 = nlp.n_collision + info["n_target"]
     off_rows = np.concatenate([np.arange(n_col_k * offset), kal0 + np.arange(t * (offset - 1))]).astype(int)
@@ -111,15 +112,9 @@ def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
     zs, ps = ca.MX.sym("z", nlp.z.shape[0]), ca.MX.sym("p", nlp.p.shape[0])
     c, i, r = nlp.parts(zs, ps)
     parts = ca.Function("parts", [zs, ps], [c, i - info_pre, r], ["z", "p"], ["control", "information", "regulariser"])
-    i_start = n_lam * K
 
     def extend(lay: Layout) -> Layout:
-        """The K-step point: the frozen prefix, then ``lay``."""
-        x = np.vstack([np.tile(D.x0, (offset + 1, 1)), lay.x[1:]])
-        Q = np.concatenate([np.zeros((1, d, d)), np.tile(Q_pre, (offset, 1, 1)), lay.Q[1:]])
-        S = np.concatenate([np.zeros((offset + 1, d, d)), lay.S[1:]])
-        lam = np.concatenate([np.zeros((offset,) + lay.lam.shape[1:]), lay.lam])
-        return Layout(x, Q, S, lam)
+        return lay.with_prefix(offset, D.x0, Q_pre)
 
     def pack(lay: Layout) -> np.ndarray:
         zv = nlp.pack(extend(lay))
@@ -127,33 +122,47 @@ def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
         return zv
 
     def unpack_with(zv: np.ndarray, model: BeliefModel) -> Layout:
-        full = nlp.unpack_with(zv, model)
-        Q = np.concatenate([np.zeros((1, d, d)), full.Q[offset + 1:]])
-        Q[1] = model.data.Q1                     # the shorter problem's fixed Q_1 (the Kalman row's value)
-        S = np.concatenate([np.zeros((1, d, d)), full.S[offset + 1:]])
-        return Layout(full.x[offset:].copy(), Q, S, full.lam[offset:].copy())
+        # Q_1 is the shorter problem's fixed one (what the Kalman row of step offset + 1 holds)
+        return nlp.unpack_with(zv, model).tail(offset, model.data.Q1)
 
     def anchor_with(lay: Layout, alpha: float | None, model: BeliefModel) -> np.ndarray:
         pv = nlp.anchor_with(extend(lay), alpha, model)
-        pv[i_start:i_start + start.size] = start
+        pv[-2 - start.size:-2] = start          # p ends with the start belief, alpha and the switch
         return pv
 
-    view = _Frozen(nlp.formulation, nlp.z, nlp.p, nlp.f, nlp.g, lbz, ubz, lbg, ubg, parts, nlp.margins, pack,
+    return _Frozen(nlp.formulation, nlp.z, nlp.p, nlp.f, nlp.g, lbz, ubz, lbg, ubg, parts, nlp.margins, pack,
                    unpack_with, anchor_with, n_col_k * n, model,
                    # the Kalman rows of steps offset + 1 .. K: the first one holds Q_{offset+1} at (P0 + W)^-1
-                   info={**info, "n_kalman": t * n, "frozen": offset}, graph=nlp.graph)
-    view.source, view.offset, view.start, view.extend, view.fixed = nlp, offset, start, extend, (idx, vals)
-    view.source_g = lambda gv: np.asarray(gv)[keep]     # the shorter problem's rows, in its order
-    return view
+                   info={**info, "n_kalman": t * n, "frozen": offset}, graph=nlp.graph,
+                   source=nlp, offset=offset, start=start, extend=extend, fixed=(idx, vals),
+                   source_g=lambda gv: np.asarray(gv)[keep])     # the shorter problem's rows, in its order
 
 
+#: the step of each variable per graph (stage_labels reads the symbols' names:
+#: 12 ms at K = 20, 46 ms at K = 80, too much for every re-plan); the
+#: "cholesky" / "logchol" pair shares its graph
+_STEPS: "weakref.WeakKeyDictionary[ca.Function, np.ndarray]" = weakref.WeakKeyDictionary()
+
+
+def _steps(nlp: NLPProblem) -> np.ndarray:
+    fn = (nlp.graph or {}).get("function")
+    if fn is None:
+        return stage_labels(nlp)
+    if fn not in _STEPS:
+        _STEPS[fn] = stage_labels(nlp)
+    return _STEPS[fn]
+
+
+@dataclass
 class _Frozen(NLPProblem):
     """:func:`frozen`'s NLP: its start-dependent parts follow the model."""
 
-    source: NLPProblem
-    offset: int
-    start: np.ndarray
-    fixed: tuple[np.ndarray, np.ndarray]      # the frozen variables' indices and values
+    source: NLPProblem | None = None
+    offset: int = 0
+    start: np.ndarray | None = None                       # the start block of p (x0, P0, Q_1, log det Q_1)
+    extend: Callable[[Layout], Layout] | None = None      # a shorter point -> the longer NLP's
+    fixed: tuple[np.ndarray, np.ndarray] | None = None    # the frozen variables' indices and values
+    source_g: Callable[[np.ndarray], np.ndarray] | None = None
 
     def margin_values(self, zv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         col, tgt = self.margins(zv, self.start)          # the frozen transitions' rows come first
