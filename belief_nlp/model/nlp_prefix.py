@@ -87,8 +87,8 @@ def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
         raise ValidationError("resume", "the start covariance is too large to freeze a floored prefix at it")
     start = np.concatenate([D.x0, D.P0.ravel(order="F"), Q_pre.ravel(order="F"),
                             [float(np.linalg.slogdet(Q_pre)[1])]])
-    # the information of a frozen step: 1/2 (log det Y_k - log det Q_k), Y_k = P0^-1
-    info_pre = offset * 0.5 * (np.linalg.slogdet(P_inv)[1] - start[-1])
+    # the information of the frozen steps (the model's term at Y_k = P0^-1, Q_k = Q_pre): a constant
+    info_pre = offset * float(model.f_step(D.x0, D.x0, P_inv, Q_pre)[1])
 
     # the frozen variables: those of steps 1..offset (x_k, L_k, M_k, lam_k by the
     # NLP's own step labels), in z's order: the means, the factors L, the M, the certificates
