@@ -64,7 +64,7 @@ def _loop(sc0, first, beliefs, method: str, frozen: bool, kw: dict) -> list[dict
         st = r.stats.get("ipopt", r.stats)
         rows.append({"step": step, "K": r.path.K, "wall_s": wall, "cpu_s": cpu, "iterations": int(r.nit),
                      "cost": float(r.cost), "initial_cost": float(r.initial_cost), "status": r.status,
-                     "resumed": st.get("resumed"), "build": st.get("build"), "load": load,
+                     "resumed": st.get("resumed"), "resumed_stage": st.get("resumed_stage"), "build": st.get("build"), "load": load,
                      "ccp_frozen": r.stats.get("ccp", {}).get("frozen"),
                      "verified": bool(bn.verify(sc, r.path).safe)})
         prev = r
@@ -97,7 +97,7 @@ def main() -> None:
                          **loops})
             for a, b in zip(loops["frozen"], loops["path"]):
                 print(f"K={K} seed {seed} step {a['step']}: frozen {a.get('cpu_s', float('nan')):.3f} s "
-                      f"{a.get('iterations')} its {a.get('cost', float('nan')):.7f} {a.get('resumed')} | path "
+                      f"{a.get('iterations')} its {a.get('cost', float('nan')):.7f} {a.get('resumed')}/{a.get('resumed_stage')} | path "
                       f"{b.get('cpu_s', float('nan')):.3f} s {b.get('iterations')} its "
                       f"{b.get('cost', float('nan')):.7f}", flush=True)
         records += rows
@@ -117,6 +117,7 @@ def main() -> None:
             "cost_frozen_over_path_minus_1": [float(rel.min()), float(np.median(rel)), float(rel.max())],
             "verified": [int(sum(a["verified"] for a in fz)), int(sum(b["verified"] for b in pa))],
             "resumed_yes": int(sum(a["resumed"] == "yes" for a in fz)),
+            "resumed_polish": int(sum(a.get("resumed_stage") == "polish" for a in fz)),
             "ccp_polish_frozen": int(sum(bool(a.get("ccp_frozen")) for a in fz)),
             "statuses_frozen": {s: int(sum(a["status"] == s for a in fz)) for s in sorted({a["status"] for a in fz})},
             "statuses_path": {s: int(sum(b["status"] == s for b in pa)) for s in sorted({b["status"] for b in pa})},

@@ -95,17 +95,31 @@ def ipopt_from():
     return solve
 
 
-@pytest.fixture
-def resume_fails(monkeypatch):
-    """Every resumed first stage ends without an answer (as a solve that does
-    not converge, or is not exactly safe, would): the engine's fallback runs."""
+def _failing(monkeypatch, name: str) -> None:
+    """The engine's resumed stage ``name`` ends without an answer (as a solve
+    that does not converge, or is not exactly safe, would)."""
     from belief_nlp.methods import nlp_engine
 
-    real = nlp_engine._resumed
+    real = getattr(nlp_engine, name)
 
     def failed(*args, **kwargs):
         stage = real(*args, **kwargs)
-        stage.answer = None
+        if stage is not None:
+            stage.answer = None
         return stage
 
-    monkeypatch.setattr(nlp_engine, "_resumed", failed)
+    monkeypatch.setattr(nlp_engine, name, failed)
+
+
+@pytest.fixture
+def resume_fails(monkeypatch):
+    """Every resumed stage (the polish alone, then the first stage) ends
+    without an answer: the engine's fallback, the usual first stage, runs."""
+    _failing(monkeypatch, "_resumed_polish")
+    _failing(monkeypatch, "_resumed")
+
+
+@pytest.fixture
+def polish_resume_fails(monkeypatch):
+    """The resumed polish ends without an answer: the resumed first stage runs."""
+    _failing(monkeypatch, "_resumed_polish")

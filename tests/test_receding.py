@@ -108,7 +108,8 @@ def test_a_prefix_that_cannot_be_frozen_is_refused(plan10):
 def test_a_receding_loop_reuses_the_graph_and_answers_as_a_fresh_horizon(plan10):
     """Three executed steps, one at a time: each re-plan resumes on the
     K = 10 graph (nothing built), answers as the re-plan that builds the
-    shorter horizon from the re-anchored path (cost to 1e-6), in fewer
+    shorter horizon from the re-anchored path (cost to 1e-5, the polish's
+    tolerance: both are the same local optimum to it), in fewer
     iterations, verified and no costlier than its warm start."""
     sc, previous = plan10
     rng = np.random.default_rng(0)
@@ -122,7 +123,7 @@ def test_a_receding_loop_reuses_the_graph_and_answers_as_a_fresh_horizon(plan10)
         assert r.status == "converged" and r.safe and bn.verify(moved, r.path).safe
         assert r.path.K == K - step and r.cost <= r.initial_cost
         np.testing.assert_allclose(r.path.x[0], moved.x0, rtol=1e-15, atol=0)
-        assert r.cost == pytest.approx(ref.cost, rel=1e-6)
+        assert r.cost == pytest.approx(ref.cost, rel=1e-5)
         assert r.nit < ref.nit
         assert r.resume["offset"] == step            # the next re-plan freezes one more step
         previous = r
@@ -151,6 +152,51 @@ def test_when_the_frozen_solve_fails_the_usual_stage_runs_on_the_same_graph(plan
     assert back.resume["offset"] == 2                # the state of the graph that answered
     assert back.cost == pytest.approx(ref.cost, rel=1e-6)
     assert bn.verify(moved, back.path).safe
+
+
+def test_the_last_polish_resumes_alone(plan10):
+    """When the last answer is its polish's, the re-plan resumes that stage
+    alone (its variables and multipliers, its switched-off sensing kept
+    off): the first stage does not run; fewer iterations than resuming the
+    first stage and polishing, the same answer to the polish's tolerance,
+    and the steps that sensed nothing still sense nothing."""
+    sc, previous = plan10
+    assert previous.resume["polish"] is not None and "polished" in previous.message
+    moved = _moved(sc, previous, 1, np.random.default_rng(5))
+    r = bn.replan(moved, previous, advance=1, **KW)
+    both = bn.replan(moved, dataclasses.replace(previous, resume={**previous.resume, "polish": None}), advance=1,
+                     **KW)
+    assert r.stats["resumed"] == "yes" and r.stats["resumed_stage"] == "polish"
+    assert [a["formulation"] for a in r.stats["attempts"]] == ["cholesky"]
+    assert both.stats["resumed_stage"] == "first" and len(both.stats["attempts"]) == 2
+    assert r.status == "converged" and bn.verify(moved, r.path).safe and r.cost <= r.initial_cost
+    assert r.cost == pytest.approx(both.cost, rel=1e-5) and r.nit < both.nit
+    off = [k for k in range(1, previous.path.K) if not previous.path.S[k].any()]
+    assert off and all(not r.path.S[k - 1].any() for k in off)
+    # the next re-plan goes on from this polish; the first stage's state is the earlier one's
+    assert r.resume["offset"] == 1 and r.resume["polish"] is not None
+    np.testing.assert_array_equal(r.resume["z"], previous.resume["z"])
+
+
+def test_when_the_resumed_polish_fails_the_first_stage_resumes(plan10, polish_resume_fails):
+    """The failed polish attempt is counted; the resumed first stage and its
+    polish then answer as a fresh horizon does; a run whose answer is not its
+    polish's keeps no polish state."""
+    sc, previous = plan10
+    moved = _moved(sc, previous, 1, np.random.default_rng(5))
+    r = bn.replan(moved, previous, advance=1, **KW)
+    ref = bn.replan(moved, dataclasses.replace(previous, resume=None), advance=1, **KW)
+    assert r.stats["resumed"] == "yes" and r.stats["resumed_stage"] == "first"
+    assert [a["formulation"] for a in r.stats["attempts"]] == ["cholesky", "logchol", "cholesky"]
+    assert r.nit == sum(a["iter_count"] for a in r.stats["attempts"])
+    assert r.status == "converged" and bn.verify(moved, r.path).safe
+    assert r.cost == pytest.approx(ref.cost, rel=1e-5)
+    unpolished = bn.smooth(sc, previous.path, method="ipopt", alpha=1.0, max_iter=3000, polish=0)
+    assert unpolished.resume is not None and unpolished.resume["polish"] is None
+    bad = {**previous.resume, "polish": {"z": previous.resume["z"]}}
+    with pytest.raises(bn.ValidationError) as err:
+        bn.replan(moved, previous, advance=1, resume=bad, **KW)
+    assert err.value.field == "resume"
 
 
 def test_a_prefix_that_cannot_be_frozen_builds_the_shorter_horizon(plan10):
@@ -231,15 +277,33 @@ def test_autos_ccp_polish_in_a_receding_replan_uses_the_frozen_step(plan10):
     sc, previous = plan10
     first = bn.smooth(sc, previous.path, method="auto", alpha=1.0)
     moved = _moved(sc, first, 1, np.random.default_rng(3))
-    r = bn.replan(moved, first, advance=1, alpha=1.0)
+    r = bn.replan(moved, first, advance=1, alpha=1.0, ccp_polish=10)     # (the default skips it here: below)
     assert r.stats["ipopt"]["resumed"] == "yes" and r.stats["ccp"]["frozen"] == 1
     # the frozen step answered (its answers were taken, not left to IPOPT's point)
     assert r.stats["ccp"]["steps"] and all((s["solver"] or "").startswith("CLARABEL") for s in r.stats["ccp"]["steps"])
     assert r.status == "converged" and bn.verify(moved, r.path).safe
     MEMORY.clear()                                     # the longer step gone: the polish builds its own
-    own = bn.replan(moved, first, advance=1, alpha=1.0)
+    own = bn.replan(moved, first, advance=1, alpha=1.0, ccp_polish=10)
     assert own.stats["ccp"]["frozen"] == 0
     assert r.cost == pytest.approx(own.cost, rel=1e-6)
+
+
+def test_autos_default_skips_the_ccp_polish_after_a_resumed_polish(plan10):
+    """By default auto's CCP polish does not run after an IPOPT stage that
+    resumed and ended on its converged exact polish (a loop's re-plan: the
+    polish changed the cost by at most 1.4e-5 there); the answer is IPOPT's,
+    verified, within 1e-4 of the polished one. A first call still polishes."""
+    sc, previous = plan10
+    first = bn.smooth(sc, previous.path, method="auto", alpha=1.0)
+    assert first.stats["stages"] == ["ipopt", "ccp polish"]
+    moved = _moved(sc, first, 1, np.random.default_rng(3))
+    r = bn.replan(moved, first, advance=1, alpha=1.0)
+    assert r.stats["ipopt"]["resumed"] == "yes" and r.stats["ipopt"]["resumed_stage"] == "polish"
+    assert r.stats["stages"] == ["ipopt"] and r.method == "auto:ipopt" and "ccp" not in r.stats
+    assert r.status == "converged" and bn.verify(moved, r.path).safe
+    polished = bn.replan(moved, first, advance=1, alpha=1.0, ccp_polish=10)
+    assert polished.stats["stages"] == ["ipopt", "ccp polish"]
+    assert polished.cost <= r.cost <= polished.cost * (1 + 1e-4)
 
 
 @pytest.mark.parametrize("offset", [-1, 1.0, True, "1"])
@@ -263,6 +327,6 @@ def test_a_receding_replan_in_three_dimensions():
     ref = bn.replan(now, dataclasses.replace(previous, resume=None), advance=1, **KW)
     assert r.stats["resumed"] == "yes" and r.nit < ref.nit
     assert r.cost == pytest.approx(ref.cost, rel=1e-6) and bn.verify(now, r.path).safe
-    auto = bn.replan(now, bn.smooth(sc, plan.path, K=10, alpha=1.0), advance=1, alpha=1.0)
+    auto = bn.replan(now, bn.smooth(sc, plan.path, K=10, alpha=1.0), advance=1, alpha=1.0, ccp_polish=10)
     assert auto.stats["ipopt"]["resumed"] == "yes" and auto.stats["ccp"]["frozen"] == 1
     assert bn.verify(now, auto.path).safe and auto.cost <= auto.initial_cost

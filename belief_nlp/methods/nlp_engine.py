@@ -18,6 +18,14 @@ Stages (docs/numerics.md, "IPOPT iterations"):
    (the same graph, so the same rows and variables); its answer replaces
    stage 1's when it converged, is exactly safe and is not costlier.
 
+A re-plan with the option ``resume`` (:mod:`.nlp_resume`) first resumes
+the polish alone from the earlier polish's answer and multipliers, when that
+answer was the run's (its switched-off sensing stays off: a loop's re-plan
+keeps the sensing pattern while this converges); when it does not end
+converged and exactly safe, the first stage resumes from its own earlier
+state and the polish follows; when that fails too, the usual first stage
+runs from the warm start.
+
 When a stage stops without converging (iteration share, solver failure, a
 stall of ``stall`` iterations without a lower feasible cost), the solver is
 restarted from the best exactly safe point so far. The solver's last point is
@@ -35,7 +43,8 @@ iterations, restoration iterations, CPU and wall seconds), ``iter_count``,
 ``resumed`` (with the option ``resume``: "yes", "fell back" when that solve
 did not end converged and exactly safe and the usual first stage ran, "does
 not fit" when it cannot be used here: another graph, plug-in, floor,
-formulation or ``scale_means``; "no" without it).
+formulation or ``scale_means``; "no" without it), ``resumed_stage``
+("polish" or "first": which resumed stage answered; None otherwise).
 """
 
 from __future__ import annotations
@@ -277,10 +286,20 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     prefix = int(resume["offset"]) if fits else 0
     key = _base_key(longer(problem.model, prefix), formulation, margin, regularisation) if resumable else ""
     try:
-        before = None
-        if fits and nlp_resume.matches(resume, backend.plugin, key, floor):
-            before = _resumed(problem, backend, resume, opts, floor, max_iter, common, prefix)
+        before = direct = None
+        polish_opts = backend.options(problem.solver_options, problem.tol, "polish")
+        if fits and nlp_resume.matches(resume, backend.plugin, key, floor) and polish and resume.get("polish"):
+            # the last polish's answer and multipliers: that stage alone, when it ends converged and safe
+            direct = _resumed_polish(problem, backend, resume["polish"], polish_opts, floor,
+                                     min(int(polish), max_iter), common, prefix)
+            if direct is not None and direct.answer is not None:
+                before, resumed = direct, "yes"
+        if before is None and fits and nlp_resume.matches(resume, backend.plugin, key, floor):
+            before = _resumed(problem, backend, resume, opts, floor, max_iter - (direct.used if direct else 0),
+                              common, prefix)
             resumed = "does not fit" if before is None else "yes" if before.answer is not None else "fell back"
+            if direct is not None and before is not None:
+                before.attempts, before.used = direct.attempts + before.attempts, direct.used + before.used
         if before is None or before.answer is None:
             # the usual stage from the warm start: on the frozen graph when the
             # resumed solve ran there (nothing built), else on the problem's own
@@ -295,12 +314,13 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         else:
             first = before
         stages = [first]
-        if formulation == "logchol" and polish and first.answer is not None and first.used < max_iter \
+        if first is direct:
+            pass                         # the polish's own stage, resumed: nothing after it
+        elif formulation == "logchol" and polish and first.answer is not None and first.used < max_iter \
                 and not problem.out_of_time() and not problem.stop_requested:
             # the floored answer senses >= floor^2 in every direction: switch the
             # directions held at the floor off and free the rest on the exact
             # Cholesky NLP (docs/numerics.md, "IPOPT iterations")
-            polish_opts = backend.options(problem.solver_options, problem.tol, "polish")
             second = _solve_stage(problem, backend, _Stage(), formulation="cholesky", floor=floor, opts=polish_opts,
                                   bounds=lambda nlp, lay: nlp.without_sensing(lay, floor), start=first.answer[1],
                                   max_iter=min(int(polish), max_iter - first.used), restarts=0,
@@ -312,8 +332,15 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
             bar.close()
     out = _outcome(problem, backend, stages, max_iter)
     out.stats["resumed"] = resumed
+    out.stats["resumed_stage"] = "polish" if first is direct else "first" if resumed == "yes" else None
     if key and first.answer is not None and first.duals is not None:
-        out.resume = nlp_resume.state(backend.plugin, key, floor, first.z, first.duals, prefix)
+        # the polish's state when its answer is the run's (a later re-plan resumes it alone)
+        last = first if first is direct else stages[1] if len(stages) > 1 else None
+        pol = (last.z, last.duals) if last and last.answer is not None and out.point is last.answer[1] else None
+        if first is direct:              # the first stage's state stays the earlier one's
+            out.resume = {**resume, "offset": prefix, "polish": nlp_resume.polish_state(*pol) if pol else None}
+        else:
+            out.resume = nlp_resume.state(backend.plugin, key, floor, first.z, first.duals, prefix, pol)
     return out
 
 
@@ -335,6 +362,24 @@ def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts:
                             start=problem.start, max_iter=min(max_iter, RESUME_LIMIT * problem.model.data.K),
                             restarts=0, offset=problem.iterations, bounds=bounds,
                             duals=(resume["lam_x"], resume["lam_g"]), prefix=prefix, **common)
+    except ValidationError as exc:
+        if exc.field != "resume":
+            raise
+        return None
+
+
+def _resumed_polish(problem: SmoothingProblem, backend: NLPBackend, state: dict, opts: dict, floor: float,
+                    max_iter: int, common: dict, prefix: int) -> _Stage | None:
+    """The polish stage alone from an earlier polish's answer and multipliers
+    (``state``), its switched-off sensing kept off; one attempt of at most
+    ``max_iter`` iterations (None when the prefix cannot be frozen)."""
+    def bounds(nlp: NLPProblem, lay: Layout) -> tuple:
+        return nlp.switch_off(np.clip(state["z"], nlp.lbz, nlp.ubz), nlp.lbz, nlp.ubz, floor)
+
+    try:
+        return _solve_stage(problem, backend, _Stage(), formulation="cholesky", floor=floor, opts=opts,
+                            start=problem.start, max_iter=max_iter, restarts=0, offset=problem.iterations,
+                            bounds=bounds, duals=(state["lam_x"], state["lam_g"]), prefix=prefix, **common)
     except ValidationError as exc:
         if exc.field != "resume":
             raise

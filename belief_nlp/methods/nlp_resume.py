@@ -16,6 +16,12 @@ shorter: the state then says so (``offset``, :func:`advanced`) and the
 engine solves the re-plan on the state's own, longer graph with its first
 ``offset`` steps frozen at the new start (:mod:`belief_nlp.model.nlp_prefix`):
 nothing is built and the multipliers fit.
+
+When the answer was the exact polish's (the second stage on the "cholesky"
+NLP), the state also holds that polish's variables and multipliers
+(``polish``); the engine then resumes the polish alone, its switched-off
+sensing kept off, and the first stage only when that does not converge
+(session 15: K = 40 loop re-plans 0.26 s instead of 0.46 s with IPOPT).
 """
 
 from __future__ import annotations
@@ -24,18 +30,26 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["state", "matches", "check", "advanced"]
+__all__ = ["state", "polish_state", "matches", "check", "advanced"]
 
-_KEYS = {"plugin", "key", "floor", "offset", "z", "lam_x", "lam_g"}
+_KEYS = {"plugin", "key", "floor", "offset", "z", "lam_x", "lam_g", "polish"}
 
 
-def state(plugin: str, key: str, floor: float, z: np.ndarray, duals: tuple, offset: int = 0) -> dict:
+def state(plugin: str, key: str, floor: float, z: np.ndarray, duals: tuple, offset: int = 0,
+          polish: tuple | None = None) -> dict:
     """The resumable state of a converged first stage: the graph's key (the
     scenario and K without the start belief and alpha), the floor, the
     steps of that graph frozen before the answer's (``offset``), the
-    variables and the multipliers (lam_x, lam_g)."""
+    variables and the multipliers (lam_x, lam_g); ``polish`` (z, (lam_x,
+    lam_g)): the polish's answer when it is the run's."""
     return {"plugin": plugin, "key": key, "floor": float(floor), "offset": int(offset), "z": np.array(z, float),
-            "lam_x": np.array(duals[0], float), "lam_g": np.array(duals[1], float)}
+            "lam_x": np.array(duals[0], float), "lam_g": np.array(duals[1], float),
+            "polish": polish_state(*polish) if polish else None}
+
+
+def polish_state(z: np.ndarray, duals: tuple) -> dict:
+    """The polish's part of a state: its variables and multipliers."""
+    return {"z": np.array(z, float), "lam_x": np.array(duals[0], float), "lam_g": np.array(duals[1], float)}
 
 
 def advanced(resume: dict | None, advance: int) -> dict | None:
@@ -56,8 +70,11 @@ def check(v: Any) -> str | None:
     """The ``resume`` option's check: None or a state of :func:`state`."""
     if v is None:
         return None
-    arrays_ok = isinstance(v, dict) and set(v) == _KEYS and all(
-        isinstance(v[k], np.ndarray) and v[k].ndim == 1 and np.all(np.isfinite(v[k])) for k in ("z", "lam_x", "lam_g"))
+    def arrays(d: Any) -> bool:
+        return isinstance(d, dict) and all(isinstance(d.get(k), np.ndarray) and d[k].ndim == 1
+                                           and np.all(np.isfinite(d[k])) for k in ("z", "lam_x", "lam_g"))
+
+    arrays_ok = isinstance(v, dict) and set(v) == _KEYS and arrays(v) and (v["polish"] is None or arrays(v["polish"]))
     offset_ok = arrays_ok and isinstance(v["offset"], int) and not isinstance(v["offset"], bool) and v["offset"] >= 0
     if not offset_ok:
         return "must be None or a SmoothResult's resume state (SmoothResult.resume)"

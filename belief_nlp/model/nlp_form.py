@@ -158,20 +158,24 @@ class NLPProblem:
         point stationary for the full problem. Returns (z0, lbz, ubz)."""
         if self.formulation != "cholesky":
             raise ValidationError("formulation", "without_sensing() needs the 'cholesky' NLP")
+        return self.switch_off(self.pack(lay), self.lbz, self.ubz, floor, slack)
+
+    def switch_off(self, z: np.ndarray, lbz: np.ndarray, ubz: np.ndarray, floor: float,
+                   slack: float = 0.1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of the "cholesky" values ``z`` and bounds with every column
+        of L whose norm is at most floor (1 + slack) fixed at 0 (and a
+        budget's levels at their values): :meth:`without_sensing` of packed
+        values, e.g. an earlier polish's answer, whose switched-off columns
+        are 0 and stay off."""
         tri, d, K, off = self.info["tri"], self.info["d"], self.info["K"], self.info["sensing_offset"]
-        z0, lbz, ubz = self.pack(lay), self.lbz.copy(), self.ubz.copy()
-        # the factors L_k as pack() put them into z0 (the "cholesky" NLP holds
-        # L's entries): the same matrices as factoring S_k again, at no cost
+        z0, lbz, ubz = np.array(z, float), np.array(lbz, float), np.array(ubz, float)
+        # the "cholesky" NLP holds L's entries: column norms without factoring S_k again
         L = np.zeros((K, d, d))
         L[:, [i for i, _ in tri], [j for _, j in tri]] = z0[off:off + K * len(tri)].reshape(K, len(tri))
-        col_norms = np.linalg.norm(L, axis=1)                    # (K, d): column norms of each L_k
-        for k in range(1, K + 1):
-            cols = col_norms[k - 1]
-            for c in np.flatnonzero(cols <= floor * (1 + slack)):
-                for p, (i, j) in enumerate(tri):
-                    if j == c:
-                        idx = off + (k - 1) * len(tri) + p
-                        z0[idx] = lbz[idx] = ubz[idx] = 0.0
+        off_cols = np.linalg.norm(L, axis=1) <= floor * (1 + slack)        # (K, d)
+        col_of = np.array([j for _, j in tri])
+        idx = off + np.flatnonzero(off_cols[:, col_of].ravel())           # entries of switched-off columns
+        z0[idx] = lbz[idx] = ubz[idx] = 0.0
         if self.info.get("n_budget"):
             # the levels stay where the first stage allocated them: the polish only
             # removes the floor's sensing (with them free it took 50+ iterations)
