@@ -65,7 +65,7 @@ def _loop(sc0, first, beliefs, method: str, frozen: bool, kw: dict) -> list[dict
         rows.append({"step": step, "K": r.path.K, "wall_s": wall, "cpu_s": cpu, "iterations": int(r.nit),
                      "cost": float(r.cost), "initial_cost": float(r.initial_cost), "status": r.status,
                      "resumed": st.get("resumed"), "resumed_stage": st.get("resumed_stage"), "build": st.get("build"), "load": load,
-                     "ccp_frozen": r.stats.get("ccp", {}).get("frozen"),
+                     "ccp_frozen": r.stats.get("ccp", r.stats).get("frozen"),
                      "verified": bool(bn.verify(sc, r.path).safe)})
         prev = r
     return rows

@@ -21,7 +21,7 @@ from belief_nlp.model import BeliefModel
 from belief_nlp.model.nlp_form import build_nlp
 from belief_nlp.model.nlp_prefix import frozen
 
-from conftest import PAPER_MULTI_WAYPOINTS, densify
+from conftest import paper_multi_path_pair
 
 KW = {"method": "ipopt", "alpha": 1.0, "max_iter": 3000}
 
@@ -29,9 +29,7 @@ KW = {"method": "ipopt", "alpha": 1.0, "max_iter": 3000}
 @pytest.fixture(scope="module")
 def plan10():
     """paper-multi on the hand route (K = 10) and IPOPT's answer."""
-    sc = bn.load_scenario("paper-multi")
-    x = densify(PAPER_MULTI_WAYPOINTS, 2)
-    path = bn.BeliefPath.from_sensing(x, sc.P0, np.broadcast_to(1e4 * np.eye(2), (x.shape[0] - 1, 2, 2)), W=sc.W)
+    sc, path = paper_multi_path_pair(2)
     return sc, bn.smooth(sc, bn.warm_start(sc, path), **KW)
 
 
@@ -217,8 +215,7 @@ def test_under_a_risk_budget_a_receding_replan_builds_its_horizon(plan10):
     graph does not fit, the re-plan builds its own (and answers)."""
     sc, _ = plan10
     risk = RiskBudget(0.05, allocation="uniform")
-    x = densify(PAPER_MULTI_WAYPOINTS, 2)
-    path = bn.BeliefPath.from_sensing(x, sc.P0, np.broadcast_to(1e4 * np.eye(2), (x.shape[0] - 1, 2, 2)), W=sc.W)
+    path = paper_multi_path_pair(2)[1]
     previous = bn.smooth(sc, path, risk=risk, **KW)
     assert previous.resume is not None
     moved = _moved(sc, previous, 1, np.random.default_rng(2))

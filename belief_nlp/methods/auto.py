@@ -16,10 +16,11 @@ Under a risk budget the default is no polish: the budgeted CCP step has no
 active-set form and costs ~10x more (notebook 06: 2.1 s -> 7.5 s for a
 0.03 % lower cost). Nor after a re-plan whose IPOPT stage resumed from an
 earlier answer and ended on its converged exact polish (``bn.replan`` in a
-loop): there the CCP polish changed the cost by at most 1.4e-5 relative in
-80 loop re-plans (session 14, receding_auto.json against receding.json) and
-took 0.1-0.2 s of a 0.15-0.45 s re-plan. An explicit ``ccp_polish`` is
-always honoured.
+loop): there the CCP polish took 0.1-0.2 s of a 0.15-0.45 s re-plan and
+lowered the cost by at most 8e-5 relative (receding loops: 1.4e-5 in
+session 14, -4e-6 .. 8e-5 on this session's 40; same-horizon re-plans
+at K = 20: 6.2e-5 median; docs/numerics.md, "The polish resumed alone").
+An explicit ``ccp_polish`` is always honoured.
 
 One budget: ``max_iter`` counts IPOPT iterations and CCP steps together
 (``ccp_reserve`` of it is kept for CCP); the time limit is the run's. The

@@ -37,25 +37,20 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import ValidationError
 from ..model import BeliefModel, Layout
 from ..model.data import psd_part
-from ..model.cache import MEMORY, DiskCache, disk_cache, problem_key
 from ..geometry.transitions import transition_minimiser
-from ..model.conic_form import ConicStep, conic_step
-from ..model.conic_prefix import FrozenConic, frozen_conic
-from ..model.nlp_prefix import longer
-from ..model.cvxpy_form import CompiledProblem, compile_problem, usable_solvers
+from ..model.cache import problem_key
+from ..model.cvxpy_form import CompiledProblem, usable_solvers
+from .ccp_steps import CHI2_MARGIN, compiled_step, conic_step_of, frozen_step
 from .ccp_cascade import (SOLVER_DEFAULTS, LazyCascade, _check_solver, _check_solver_options, _checked, _solve,
                           _StepAnswers, solver_cascade)
 from ..smoother.context import Outcome, SmoothingProblem
-from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Method, Option, register
 from ..smoother.result import STATUSES, IterationRecord
 
@@ -64,85 +59,11 @@ __all__ = ["run", "compiled_step", "solver_cascade", "usable_solvers", "initial_
 
 log = logging.getLogger("belief_nlp.smoother")
 
-CHI2_MARGIN = DEFAULT_POLICY.conic      # every collision/containment row of the step asks chi2 (1 + this)
 RHO_BAND = 100.0      # adapted split weights stay within this factor of the first step's (_adapt_rho)
 ACTIVE_FACTOR = 3.0   # the active-set step keeps the pairs whose exact squared distance is below this x chi2
 ACTIVE_ROUNDS = 3      # solves of the active-set step, each adding the pairs its answer came near
 HOLD_ACTIVE = True     # a step starts from the pairs the previous step's active set ended with
 PROXIMAL = 1e-4       # weight of the cascade's proximal step (scaled units; docs/numerics.md, "CCP solver cascade")
-
-def compiled_step(model: BeliefModel, solver: str = "CLARABEL", cache_dir: str | Path | bool | None = None,
-                  chi2_margin: float = CHI2_MARGIN, proximal: float = 0.0) -> tuple[CompiledProblem, str, DiskCache | None]:
-    """The compiled CVXPY problem of ``model``'s CCP step: from memory, from the
-    disk cache (``cache_dir``: None = the process's, :func:`belief_nlp.set_disk_cache`;
-    True = the user's cache folder; a folder; False = none), else compiled.
-    ``proximal``: the step with that proximal weight
-    (:func:`belief_nlp.model.doc.convex_form`). Returns (problem, where it
-    came from, the disk cache)."""
-    key = problem_key(model.data, chi2_margin, solver, proximal)
-    hit = MEMORY.get(key)
-    disk = _disk(cache_dir)
-    if hit is not None:
-        return _for_model(hit, model), "memory", disk
-    if disk is not None:
-        hit = disk.load(key)
-        if isinstance(hit, CompiledProblem):
-            MEMORY.put(key, hit)
-            return _for_model(hit, model), "disk", disk
-    form = model.convex_form if chi2_margin == CHI2_MARGIN and not proximal else None
-    if form is None:
-        from ..model.doc import convex_form
-
-        form = convex_form(model.data, chi2_margin, proximal)
-    step = compile_problem(form)
-    MEMORY.put(key, step)
-    return step, "compiled", disk
-
-
-def _disk(cache_dir: str | Path | bool | None) -> DiskCache | None:
-    """The disk cache a ``cache_dir`` option means (None: the process's)."""
-    if cache_dir is None:
-        return disk_cache()
-    if cache_dir is False:
-        return None
-    return DiskCache(None if cache_dir is True else cache_dir)
-
-
-def conic_step_of(model: BeliefModel, cache_dir: str | Path | bool | None = None) -> ConicStep:
-    """The model's step as Clarabel's own data (:mod:`belief_nlp.model.conic_form`),
-    built once per model key: from memory, from the disk cache (``cache_dir``
-    as in :func:`compiled_step`), else built."""
-    key = problem_key(model.data, CHI2_MARGIN, "CLARABEL-direct")
-    hit = MEMORY.get(key)
-    if hit is None:
-        disk = _disk(cache_dir)
-        hit = disk.load(key, kind="conic") if disk is not None else None
-        if not isinstance(hit, ConicStep):
-            hit = conic_step(model.convex_form)
-            if disk is not None:
-                disk.save(key, hit, kind="conic")
-        MEMORY.put(key, hit)
-    return _for_model(hit, model)
-
-
-def _frozen_step(model: BeliefModel, prefix: int) -> FrozenConic | None:
-    """The active-set step of the horizon ``prefix`` steps longer, with those
-    steps frozen at the model's start, when that step is in memory (a
-    re-plan's previous answer built it); None otherwise."""
-    try:
-        hit = MEMORY.get(problem_key(longer(model, prefix).data, CHI2_MARGIN, "CLARABEL-direct"))
-        return frozen_conic(hit, model.data, prefix) if isinstance(hit, ConicStep) else None
-    except ValidationError:
-        return None
-
-
-def _for_model(step, model: BeliefModel):
-    """A cached step (compiled for any alpha and start belief: both are its
-    parameters) as ``model``'s: the same compiled problem, a layout with
-    ``model``'s data."""
-    layout = step.layout.for_data(model.data)
-    return step if layout is step.layout else replace(step, layout=layout)
-
 
 def active_pairs(model: BeliefModel, point: Layout, hazards) -> np.ndarray:
     """Pairs (K * J, flattened k * J + j) whose transition comes within
@@ -202,7 +123,8 @@ def _adapt_rho(model: BeliefModel, z: Layout, z_new: Layout, rho_s: np.ndarray, 
 def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | None = None,
         cache_dir: str | Path | bool | None = None, constraints: Callable | None = None,
         hook: Callable | None = None, accelerate: bool = True, active_set: bool = True,
-        _fail_at: int | None = None, _start: Layout | None = None, _prefix: int = 0) -> Outcome:
+        resume: dict | None = None, _fail_at: int | None = None, _start: Layout | None = None,
+        _prefix: int = 0) -> Outcome:
     """CCP from the problem's start (see the module doc and :data:`METHOD`).
 
     ``_start`` (for composite methods): continue from this exactly safe point
@@ -210,8 +132,11 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     against the same ``max_iter``. ``_prefix`` > 0 (a re-plan after that
     many executed steps): the active-set step is the one of the horizon
     ``_prefix`` steps longer, when it is in memory, with those steps frozen
-    (:mod:`belief_nlp.model.conic_prefix`), and no CVXPY step follows it."""
+    (:mod:`belief_nlp.model.conic_prefix`), and no CVXPY step follows it;
+    ``resume`` (an earlier answer's state, ``bn.replan(..., advance=k)``)
+    gives that offset. The outcome's state says the offset of the step used."""
     model, D = problem.model, problem.model.data
+    _prefix = _prefix or (int(resume["offset"]) if resume is not None else 0)
     solver = (problem.solver or "CLARABEL").upper()
     _check_solver_options(solver, problem.solver_options)
     if problem.out_of_time():                      # the warm start used the budget up
@@ -234,7 +159,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         # the CVXPY step is compiled only when a step needs it (an answer the
         # active-set step cannot give): most runs never do (0.3-0.7 s saved)
         t0 = time.perf_counter()
-        frozen = _frozen_step(model, _prefix) if _prefix else None
+        frozen = frozen_step(model, _prefix) if _prefix else None
         conic = frozen or conic_step_of(model, cache_dir)
         stats["active_set_build_time"] = time.perf_counter() - t0
         if frozen is not None:
@@ -440,7 +365,21 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         bar.close()
     stats["cpu_time"] = time.process_time() - cpu0
     stats.pop("disk", None)
-    return Outcome(status, message, None, solver, stats)
+    if frozen is not None and status in _FAILED and not problem.out_of_time() and not problem.stop_requested:
+        # the frozen step has no CVXPY cascade behind it (that is the shorter
+        # horizon's): go on from the last accepted point on the horizon's own step
+        log.info("CCP: the frozen step ended %s; going on with the horizon's own step", status)
+        out = run(problem, monotone_tol=monotone_tol, rho=rho, cache_dir=cache_dir, accelerate=accelerate,
+                  active_set=active_set, _fail_at=_fail_at, _start=z)
+        out.stats["frozen_failed"] = {"status": status, "iter_count": stats["iter_count"],
+                                      "cpu_time": stats["cpu_time"]}
+        return out
+    # a later re-plan after executed steps solves the step used here with them frozen
+    return Outcome(status, message, None, solver, stats, resume=None if conic is None else {"offset": stats["frozen"]})
+
+
+#: a run's end without an answer of its last step (solver_failed: none came; the others: all refused)
+_FAILED = ("solver_failed", "infeasible_iterate", "non_monotone")
 
 
 class _LazyStep:
@@ -472,6 +411,13 @@ def _callable_or_none(v: Any) -> str | None:
     return None if v is None or callable(v) else "must be None or a callable"
 
 
+def _check_resume(v: Any) -> str | None:
+    """None, or a state with the steps executed since its graph (``offset``)."""
+    ok = v is None or (isinstance(v, dict) and isinstance(v.get("offset"), int) and not isinstance(v["offset"], bool)
+                       and v["offset"] >= 0)
+    return None if ok else "must be None or a SmoothResult's resume state (SmoothResult.resume)"
+
+
 METHOD = register(Method(
     name="ccp", run=run, max_iter=50, default_solver="CLARABEL", check_solver=_check_solver,
     description="convex-concave procedure (paper IV.A): monotone, every iterate exactly safe",
@@ -493,6 +439,9 @@ METHOD = register(Method(
         "active_set": Option(True, "solve each step first with only the pairs within "
                                    f"{ACTIVE_FACTOR:g} chi2 (the full step when the exact check refuses)",
                              lambda v: None if isinstance(v, bool) else "must be True or False"),
+        "resume": Option(None, "an earlier answer's state (SmoothResult.resume; bn.replan passes it): after "
+                               "executed steps, the step built for its longer horizon, when still in memory, "
+                               "with those steps frozen", _check_resume),
         "_fail_at": Option(None, "testing: make every subproblem from this iteration on fail"),
         "_start": Option(None, "composite methods: continue from this exactly safe point"),
     },

@@ -122,10 +122,12 @@ def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, 
                                         "smooth reanchor(...) yourself to change them")
     # after executed steps the state's graph is read with them frozen (nlp_resume.advanced)
     resume = nlp_resume.advanced(previous.resume, advance) if isinstance(previous, SmoothResult) else None
-    # the NLP's first stage starts from the last answer's variables and multipliers
-    # (the methods with the option "resume": ipopt, auto; the others go without)
+    # the NLP's first stage starts from the last answer's variables and multipliers, CCP
+    # from the conic step of its graph (the methods with the option "resume", when
+    # their check takes this state: ipopt and auto IPOPT's, ccp any offset)
     m = method if isinstance(method, Method) else get_method(method) if isinstance(method, str) else None
-    if resume is not None and m is not None and "resume" in m.options:
+    check = m.options["resume"].check if m is not None and "resume" in m.options else None
+    if resume is not None and check is not None and check(resume) is None:
         kwargs.setdefault("resume", resume)
     # the driver builds the warm start (with a risk budget's level, its K fallback)
     return smooth(scenario, reanchor(scenario, previous, advance), method=method, sensing="path", **kwargs)

@@ -174,9 +174,10 @@ class SmoothResult:
         What a re-plan on the same scenario can start from, on the same K or
         after executed steps (:func:`belief_nlp.replan` passes it on): for
         IPOPT's first stage (methods ``ipopt`` and ``auto``) its converged
-        variables and multipliers, and the NLP graph they belong to; None
-        for other methods. In memory only: not saved, not
-        compared.
+        variables and multipliers (and its polish's), and the NLP graph they
+        belong to; for ``ccp`` the steps its conic step's horizon is
+        longer by (``offset``); None for other methods. In memory only: not
+        saved, not compared.
     """
 
     path: BeliefPath
