@@ -288,13 +288,14 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     try:
         before = direct = None
         polish_opts = backend.options(problem.solver_options, problem.tol, "polish")
-        if fits and nlp_resume.matches(resume, backend.plugin, key, floor) and polish and resume.get("polish"):
+        ours = fits and nlp_resume.matches(resume, backend.plugin, key, floor)
+        if ours and polish and resume.get("polish"):
             # the last polish's answer and multipliers: that stage alone, when it ends converged and safe
             direct = _resumed_polish(problem, backend, resume["polish"], polish_opts, floor,
                                      min(int(polish), max_iter), common, prefix)
             if direct is not None and direct.answer is not None:
                 before, resumed = direct, "yes"
-        if before is None and fits and nlp_resume.matches(resume, backend.plugin, key, floor):
+        if before is None and ours:
             before = _resumed(problem, backend, resume, opts, floor, max_iter - (direct.used if direct else 0),
                               common, prefix)
             resumed = "does not fit" if before is None else "yes" if before.answer is not None else "fell back"
