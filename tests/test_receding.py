@@ -303,6 +303,34 @@ def test_autos_default_skips_the_ccp_polish_after_a_resumed_polish(plan10):
     assert polished.cost <= r.cost <= polished.cost * (1 + 1e-4)
 
 
+def test_autos_ccp_answer_keeps_ipopts_state_and_the_frozen_step(plan10, monkeypatch):
+    """When IPOPT's converged answer is not taken (here made costlier than
+    the warm start), auto answers by CCP on the longer horizon's conic step,
+    frozen alike, and keeps IPOPT's state: the next re-plan resumes on the
+    same graph instead of building its horizon."""
+    from belief_nlp.methods import auto
+
+    sc, previous = plan10
+    first = bn.smooth(sc, previous.path, method="auto", alpha=1.0)
+    real = auto.FIRST_STAGE.run
+
+    def above_start(problem, **kw):
+        out = real(problem, **kw)
+        if out.point is not None:             # the answer with 4x the sensing: safe, and costlier than the start
+            out.point = problem.model.tighten(dataclasses.replace(problem.start, S=4 * problem.start.S))
+        return out
+
+    monkeypatch.setattr(auto.FIRST_STAGE, "run", above_start)
+    moved = _moved(sc, first, 1, np.random.default_rng(6))
+    r = bn.replan(moved, first, advance=1, alpha=1.0)
+    assert r.method == "auto:ccp" and r.stats["ipopt"]["resumed"] == "yes" and r.stats["ccp"]["frozen"] == 1
+    assert r.status == "converged" and bn.verify(moved, r.path).safe and r.cost <= r.initial_cost
+    assert r.resume is not None and r.resume["offset"] == 1
+    monkeypatch.setattr(auto.FIRST_STAGE, "run", real)
+    nxt = bn.replan(_moved(sc, r, 1, np.random.default_rng(7)), r, advance=1, alpha=1.0)
+    assert nxt.stats["ipopt"]["resumed"] == "yes" and nxt.resume["offset"] == 2
+
+
 @pytest.mark.parametrize("offset", [-1, 1.0, True, "1"])
 def test_a_resume_state_with_a_bad_offset_is_our_error(plan10, offset):
     sc, previous = plan10

@@ -26,7 +26,10 @@ One budget: ``max_iter`` counts IPOPT iterations and CCP steps together
 (``ccp_reserve`` of it is kept for CCP); the time limit is the run's. The
 result's ``method`` says which stages ran ("auto:ipopt+ccp": IPOPT's answer
 polished; "auto:ipopt": no polish; "auto:ccp": CCP from IPOPT's best safe
-point) and the history holds both stages' records.
+point) and the history holds both stages' records. Each outcome keeps
+IPOPT's state (``SmoothResult.resume``) when IPOPT converged, "auto:ccp"
+too: a re-plan after executed steps then resumes IPOPT on the same graph,
+and both CCP stages use that graph's conic step, frozen alike.
 """
 
 from __future__ import annotations
@@ -97,6 +100,8 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
     first = _stage(problem, problem.max_iter - reserve, FIRST_STAGE.run, FIRST_STAGE.METHOD.default_solver,
                    problem.solver_options, **first_options)
     stats: dict[str, Any] = {"ipopt": first.stats, "stages": ["ipopt"]}
+    # after executed steps (a re-plan) CCP solves the conic step of the state's longer horizon, frozen alike
+    prefix = int((first_options.get("resume") or {}).get("offset", 0))
     if polish_default and _resumed_polished(first):
         ccp_polish = 0
     if first.status == "converged" and first.point is not None:
@@ -106,9 +111,8 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
                 return Outcome("converged", f"IPOPT: {first.message}", chk.point, "IPOPT", _totals(stats, "ipopt"),
                                "auto:ipopt", first.resume)
             problem.points[problem.iterations] = chk.point
-            # after executed steps (a re-plan solved on a longer graph) its conic step, frozen alike
             second = _stage(problem, problem.iterations + ccp_polish, ccp.run, *ccp_opts, _start=chk.point,
-                            _prefix=int((first.resume or {}).get("offset", 0)))
+                            _prefix=prefix)
             stats.update(ccp=second.stats, stages=["ipopt", "ccp polish"])
             # the driver picks the lowest-cost verified candidate: IPOPT's point or a polished one
             return Outcome("converged", f"IPOPT: {first.message}; CCP polish: {second.status}", None, "IPOPT+CCP",
@@ -119,10 +123,12 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
     # CCP from the best exactly safe point so far
     best = min(problem.points.items(), key=lambda kv: problem.model.cost(kv[1])[0], default=(None, None))[1]
     start = best if best is not None and problem.model.cost(best)[0] <= problem.cost0 else problem.start
-    second = _stage(problem, problem.max_iter, ccp.run, *ccp_opts, _start=start)
+    second = _stage(problem, problem.max_iter, ccp.run, *ccp_opts, _start=start, _prefix=prefix)
     stats.update(ccp=second.stats, stages=["ipopt", "ccp"])
+    # IPOPT's state, when it converged (above the warm start, or refused): a later
+    # re-plan resumes it on this graph instead of building the next horizon's
     return Outcome(second.status, f"IPOPT: {first.status}; CCP from the best safe point: {second.message}",
-                   None, ccp_solver, _totals(stats, "ccp"), "auto:ccp")
+                   None, ccp_solver, _totals(stats, "ccp"), "auto:ccp", first.resume)
 
 
 def _count(v: Any) -> str | None:
