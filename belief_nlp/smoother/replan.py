@@ -6,8 +6,10 @@ start than a new IG-RRT* plan: its means are smooth and its sensing is
 where the cost wants it. :func:`replan` re-anchors that answer at the
 scenario's start belief, keeps its sensing (``warm_start(...,
 sensing="path")``, which adds sensing only where a transition needs it)
-and smooths; IPOPT's first stage resumes from the last answer's variables
-and multipliers (:mod:`belief_nlp.methods.nlp_resume`). The start belief is
+and smooths; IPOPT resumes from the last answer's variables and
+multipliers (its exact polish alone when that gave the answer, else its
+first stage: :mod:`belief_nlp.methods.nlp_resume`), and CCP from the last
+answer's conic step. The start belief is
 a parameter of every solver form, so on the same scenario and horizon
 nothing is built again; after executed steps the last answer's graph is
 solved with them frozen (:mod:`belief_nlp.model.nlp_prefix`), so a
@@ -88,15 +90,18 @@ def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, 
         e.g. ``scenario.with_options(x0=x_hat, P0=P_hat)``.
     previous : SmoothResult, WarmStart or BeliefPath
         The last plan (:func:`reanchor` moves it to the new start). A
-        :class:`SmoothResult` of ``ipopt`` or ``auto`` also hands IPOPT's
-        first stage its variables and multipliers (:attr:`SmoothResult.resume`):
-        a few iterations instead of a new descent (docs/performance.md,
-        "Re-planning from a new belief").
+        :class:`SmoothResult` of ``ipopt`` or ``auto`` also hands IPOPT
+        its variables and multipliers (:attr:`SmoothResult.resume`): a few
+        iterations instead of a new descent; one of ``ccp`` the horizon of
+        its conic step (docs/performance.md, "Re-planning from a new
+        belief"). A state goes only to a method whose ``resume`` option
+        takes it.
     advance : int, optional
         Steps executed since ``previous`` (default 0); the horizon becomes
         ``previous.K - advance``. With the resume state the re-plan is
-        solved on ``previous``'s graph with those steps frozen at the new
-        start (:mod:`belief_nlp.model.nlp_prefix`): nothing is built for
+        solved on ``previous``'s graph (or conic step) with those steps
+        frozen at the new start (:mod:`belief_nlp.model.nlp_prefix`,
+        :mod:`belief_nlp.model.conic_prefix`): nothing is built for
         the shorter horizon (without a risk budget, whose levels depend on
         the horizon).
     method, **kwargs
