@@ -285,6 +285,32 @@ def test_autos_ccp_polish_in_a_receding_replan_uses_the_frozen_step(plan10):
     assert r.cost == pytest.approx(own.cost, rel=1e-6)
 
 
+def test_a_polish_that_did_not_lower_the_answer_is_skipped_by_the_next_replans(plan10, monkeypatch):
+    """A run whose polish could not lower its answer (here: every sensing
+    column switched off, which no safe point allows) tells the next
+    POLISH_RETRY re-plans to skip it; they answer from the first stage,
+    verified, and count the skips down."""
+    from belief_nlp.methods.nlp_engine import POLISH_RETRY
+    from belief_nlp.model.nlp_form import NLPProblem
+
+    sc, previous = plan10
+    with monkeypatch.context() as mp:
+        mp.setattr(NLPProblem, "without_sensing",
+                   lambda self, lay, floor, slack=0.1: self.switch_off(self.pack(lay), self.lbz, self.ubz, 1e9))
+        failed = bn.smooth(sc, previous.path, **KW)
+    assert "not lower; not used" in failed.message and failed.resume["polish_skip"] == POLISH_RETRY
+    assert failed.resume["polish"] is None
+    moved = _moved(sc, failed, 1, np.random.default_rng(8))
+    r = bn.replan(moved, failed, advance=1, **KW)
+    assert r.stats["polish_skipped"] and [a["formulation"] for a in r.stats["attempts"]] == ["logchol"]
+    assert r.resume["polish_skip"] == POLISH_RETRY - 1 and "polish skipped" in r.message
+    assert r.status == "converged" and bn.verify(moved, r.path).safe
+    last = bn.replan(moved, dataclasses.replace(r, resume={**r.resume, "polish_skip": 0}), advance=0, **KW)
+    assert not last.stats["polish_skipped"] and last.resume["polish_skip"] == 0      # polished again
+    kept = bn.replan(moved, failed, advance=1, polish_retry=0, **KW)                 # (auto's IPOPT stage)
+    assert not kept.stats["polish_skipped"] and kept.stats["attempts"][-1]["formulation"] == "cholesky"
+
+
 def test_autos_default_skips_the_ccp_polish_after_a_resumed_polish(plan10):
     """By default auto's CCP polish does not run after an IPOPT stage that
     resumed and ended on its converged exact polish (a loop's re-plan: the

@@ -375,7 +375,8 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
                                       "cpu_time": stats["cpu_time"]}
         return out
     # a later re-plan after executed steps solves the step used here with them frozen
-    return Outcome(status, message, None, solver, stats, resume=None if conic is None else {"offset": stats["frozen"]})
+    return Outcome(status, message, None, solver, stats,
+                   resume=None if conic is None else {"offset": stats["frozen"]})
 
 
 #: a run's end without an answer of its last step (solver_failed: none came; the others: all refused)

@@ -44,7 +44,9 @@ iterations, restoration iterations, CPU and wall seconds), ``iter_count``,
 did not end converged and exactly safe and the usual first stage ran, "does
 not fit" when it cannot be used here: another graph, plug-in, floor,
 formulation or ``scale_means``; "no" without it), ``resumed_stage``
-("polish" or "first": which resumed stage answered; None otherwise).
+("polish" or "first": which resumed stage answered; None otherwise),
+``polish_skipped`` (a re-plan after one whose polish did not lower its
+answer skips it, ``polish_retry`` times: :data:`POLISH_RETRY`).
 """
 
 from __future__ import annotations
@@ -141,6 +143,13 @@ class _Stage:
     duals: tuple | None = None           # (lam_x, lam_g) of the answer's solve (backends with warm_duals)
     z: np.ndarray | None = None          # the variables of that solve (with duals)
 
+
+#: the default ``polish_retry``: re-plans (with ``resume``) that skip the
+#: polish after a run whose polish did not lower its answer, while stage 1's
+#: answer is below the warm start. At K = 80 the floor's sensing cannot be
+#: switched off and the polish ran to its 50 iterations for nothing at every
+#: re-plan (docs/numerics.md, "The polish resumed alone"); the fifth tries again
+POLISH_RETRY = 4
 
 #: iterations per step a first stage resumed from an earlier answer may take
 #: (it took 4-9 on paper-multi at K = 20 and 65-167 at K = 80, where a fixed
@@ -257,7 +266,7 @@ def _iterations(stats: dict, recorder: Recorder, backend: NLPBackend) -> int:
 def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str = "logchol", floor: float = 1e-2,
             polish: int = 50, regularisation: float = 1e-4, margin: float = DEFAULT_POLICY.nlp, restarts: int = 1,
             stall: int = 300, candidates: int = 5, cache: bool = True, scale_means: float = 1.0,
-            resume: dict | None = None) -> Outcome:
+            resume: dict | None = None, polish_retry: int = POLISH_RETRY) -> Outcome:
     """``backend``'s solver from the problem's start (module doc); ``scale_means``
     != 1 solves the first stage with the means scaled (:mod:`.nlp_scaled`);
     ``resume``: an earlier answer's first-stage state (:mod:`.nlp_resume`),
@@ -289,6 +298,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         before = direct = None
         polish_opts = backend.options(problem.solver_options, problem.tol, "polish")
         ours = fits and nlp_resume.matches(resume, backend.plugin, key, floor)
+        skip = int(resume.get("polish_skip", 0)) if ours and polish_retry else 0
         if ours and polish and resume.get("polish"):
             # the last polish's answer and multipliers: that stage alone, when it ends converged and safe
             direct = _resumed_polish(problem, backend, resume["polish"], polish_opts, floor,
@@ -315,9 +325,14 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         else:
             first = before
         stages = [first]
+        # a polish that did not lower a recent answer is skipped while stage 1's answer
+        # is below the warm start (above it, the polish is the answer's only chance)
+        skipped = bool(skip) and first is not direct and first.answer is not None \
+            and first.answer[0] <= problem.cost0
         if first is direct:
             pass                         # the polish's own stage, resumed: nothing after it
-        elif formulation == "logchol" and polish and first.answer is not None and first.used < max_iter \
+        elif formulation == "logchol" and polish and not skipped and first.answer is not None \
+                and first.used < max_iter \
                 and not problem.out_of_time() and not problem.stop_requested:
             # the floored answer senses >= floor^2 in every direction: switch the
             # directions held at the floor off and free the rest on the exact
@@ -334,14 +349,21 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     out = _outcome(problem, backend, stages, max_iter)
     out.stats["resumed"] = resumed
     out.stats["resumed_stage"] = "polish" if first is direct else "first" if resumed == "yes" else None
+    if skipped:
+        out.message += f"; polish skipped (a recent re-plan's did not lower its answer; {skip - 1} more skips)"
+    out.stats["polish_skipped"] = skipped
     if key and first.answer is not None and first.duals is not None:
         # the polish's state when its answer is the run's (a later re-plan resumes it alone)
         last = first if first is direct else stages[1] if len(stages) > 1 else None
         pol = (last.z, last.duals) if last and last.answer is not None and out.point is last.answer[1] else None
+        # a polish that did not lower stage 1's answer is skipped by the next polish_retry re-plans
+        skip_next = (0 if out.point is not first.answer[1] else int(polish_retry)) if len(stages) > 1 \
+            else max(skip - 1, 0) if skipped else 0
         if first is direct:              # the first stage's state stays the earlier one's
-            out.resume = {**resume, "offset": prefix, "polish": nlp_resume.polish_state(*pol) if pol else None}
+            out.resume = {**resume, "offset": prefix, "polish": nlp_resume.polish_state(*pol) if pol else None,
+                          "polish_skip": 0}
         else:
-            out.resume = nlp_resume.state(backend.plugin, key, floor, first.z, first.duals, prefix, pol)
+            out.resume = nlp_resume.state(backend.plugin, key, floor, first.z, first.duals, prefix, pol, skip_next)
     return out
 
 
@@ -457,6 +479,9 @@ def nlp_options(solver: str) -> dict[str, Option]:
         "candidates": Option(5, "feasible iterates kept as fallback candidates", _count),
         "cache": Option(True, f"reuse the NLP and {solver} instance of an earlier call with the same model",
                         lambda v: None if isinstance(v, bool) else "must be True or False"),
+        "polish_retry": Option(POLISH_RETRY, "re-plans (with resume) that skip the polish after one whose polish "
+                                             "did not lower its answer, while the first stage's answer is below "
+                                             "the warm start (0: never skip)", _count),
         "resume": Option(None, "an earlier answer's first-stage state (SmoothResult.resume) to start that stage "
                                "from, on the same scenario and K (bn.replan passes it; used by solvers that take "
                                "initial multipliers: IPOPT)", nlp_resume.check),

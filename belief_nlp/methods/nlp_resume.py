@@ -32,19 +32,20 @@ import numpy as np
 
 __all__ = ["state", "polish_state", "matches", "check", "advanced"]
 
-_KEYS = {"plugin", "key", "floor", "offset", "z", "lam_x", "lam_g", "polish"}
+_KEYS = {"plugin", "key", "floor", "offset", "z", "lam_x", "lam_g", "polish", "polish_skip"}
 
 
 def state(plugin: str, key: str, floor: float, z: np.ndarray, duals: tuple, offset: int = 0,
-          polish: tuple | None = None) -> dict:
+          polish: tuple | None = None, polish_skip: int = 0) -> dict:
     """The resumable state of a converged first stage: the graph's key (the
     scenario and K without the start belief and alpha), the floor, the
     steps of that graph frozen before the answer's (``offset``), the
     variables and the multipliers (lam_x, lam_g); ``polish`` (z, (lam_x,
-    lam_g)): the polish's answer when it is the run's."""
+    lam_g)): the polish's answer when it is the run's; ``polish_skip``: how
+    many more re-plans skip the polish (it did not lower a recent answer)."""
     return {"plugin": plugin, "key": key, "floor": float(floor), "offset": int(offset), "z": np.array(z, float),
             "lam_x": np.array(duals[0], float), "lam_g": np.array(duals[1], float),
-            "polish": polish_state(*polish) if polish else None}
+            "polish": polish_state(*polish) if polish else None, "polish_skip": int(polish_skip)}
 
 
 def polish_state(z: np.ndarray, duals: tuple) -> dict:
@@ -75,7 +76,8 @@ def check(v: Any) -> str | None:
                                            and np.all(np.isfinite(d[k])) for k in ("z", "lam_x", "lam_g"))
 
     arrays_ok = isinstance(v, dict) and set(v) == _KEYS and arrays(v) and (v["polish"] is None or arrays(v["polish"]))
-    offset_ok = arrays_ok and isinstance(v["offset"], int) and not isinstance(v["offset"], bool) and v["offset"] >= 0
-    if not offset_ok:
+    counts_ok = arrays_ok and all(isinstance(v[k], int) and not isinstance(v[k], bool) and v[k] >= 0
+                                  for k in ("offset", "polish_skip"))
+    if not counts_ok:
         return "must be None or a SmoothResult's resume state (SmoothResult.resume)"
     return None
