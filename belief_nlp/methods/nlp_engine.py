@@ -354,16 +354,16 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     out.stats["polish_skipped"] = skipped
     if key and first.answer is not None and first.duals is not None:
         # the polish's state when its answer is the run's (a later re-plan resumes it alone)
-        last = first if first is direct else stages[1] if len(stages) > 1 else None
-        pol = (last.z, last.duals) if last and last.answer is not None and out.point is last.answer[1] else None
-        # a polish that did not lower stage 1's answer is skipped by the next polish_retry re-plans
-        skip_next = (0 if out.point is not first.answer[1] else int(polish_retry)) if len(stages) > 1 \
-            else max(skip - 1, 0) if skipped else 0
-        if first is direct:              # the first stage's state stays the earlier one's
-            out.resume = {**resume, "offset": prefix, "polish": nlp_resume.polish_state(*pol) if pol else None,
-                          "polish_skip": 0}
+        pol_stage = first if first is direct else stages[1] if len(stages) > 1 else None
+        answered = pol_stage is not None and pol_stage.answer is not None and out.point is pol_stage.answer[1]
+        pol = (pol_stage.z, pol_stage.duals) if answered else None
+        if len(stages) > 1:              # a polish that did not lower stage 1's answer: skipped next time
+            skip_next = 0 if out.point is not first.answer[1] else int(polish_retry)
         else:
-            out.resume = nlp_resume.state(backend.plugin, key, floor, first.z, first.duals, prefix, pol, skip_next)
+            skip_next = skip - 1 if skipped else 0
+        # after the polish alone, the first stage's state stays the earlier one's
+        z, duals = (resume["z"], (resume["lam_x"], resume["lam_g"])) if first is direct else (first.z, first.duals)
+        out.resume = nlp_resume.state(backend.plugin, key, floor, z, duals, prefix, pol, skip_next)
     return out
 
 
@@ -380,15 +380,10 @@ def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts:
         # the frozen variables are fixed by their bounds: clipping sets them
         return np.clip(resume["z"], nlp.lbz, nlp.ubz), nlp.lbz, nlp.ubz
 
-    try:
-        return _solve_stage(problem, backend, _Stage(), formulation="logchol", floor=floor, opts={**opts, **own},
-                            start=problem.start, max_iter=min(max_iter, RESUME_LIMIT * problem.model.data.K),
-                            restarts=0, offset=problem.iterations, bounds=bounds,
-                            duals=(resume["lam_x"], resume["lam_g"]), prefix=prefix, **common)
-    except ValidationError as exc:
-        if exc.field != "resume":
-            raise
-        return None
+    return _frozen_stage(problem, backend, formulation="logchol", floor=floor, opts={**opts, **own},
+                         start=problem.start, max_iter=min(max_iter, RESUME_LIMIT * problem.model.data.K),
+                         restarts=0, offset=problem.iterations, bounds=bounds,
+                         duals=(resume["lam_x"], resume["lam_g"]), prefix=prefix, **common)
 
 
 def _resumed_polish(problem: SmoothingProblem, backend: NLPBackend, state: dict, opts: dict, floor: float,
@@ -399,10 +394,16 @@ def _resumed_polish(problem: SmoothingProblem, backend: NLPBackend, state: dict,
     def bounds(nlp: NLPProblem, lay: Layout) -> tuple:
         return nlp.switch_off(np.clip(state["z"], nlp.lbz, nlp.ubz), nlp.lbz, nlp.ubz, floor)
 
+    return _frozen_stage(problem, backend, formulation="cholesky", floor=floor, opts=opts, start=problem.start,
+                         max_iter=max_iter, restarts=0, offset=problem.iterations, bounds=bounds,
+                         duals=(state["lam_x"], state["lam_g"]), prefix=prefix, **common)
+
+
+def _frozen_stage(problem: SmoothingProblem, backend: NLPBackend, **kw: Any) -> _Stage | None:
+    """:func:`_solve_stage` on a resume state's graph, or None when its prefix
+    cannot be frozen at the problem's start (our ValidationError on "resume")."""
     try:
-        return _solve_stage(problem, backend, _Stage(), formulation="cholesky", floor=floor, opts=opts,
-                            start=problem.start, max_iter=max_iter, restarts=0, offset=problem.iterations,
-                            bounds=bounds, duals=(state["lam_x"], state["lam_g"]), prefix=prefix, **common)
+        return _solve_stage(problem, backend, _Stage(), **kw)
     except ValidationError as exc:
         if exc.field != "resume":
             raise

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["state", "polish_state", "matches", "check", "advanced"]
+__all__ = ["state", "matches", "check", "advanced"]
 
 _KEYS = {"plugin", "key", "floor", "offset", "z", "lam_x", "lam_g", "polish", "polish_skip"}
 
@@ -43,13 +43,12 @@ def state(plugin: str, key: str, floor: float, z: np.ndarray, duals: tuple, offs
     variables and the multipliers (lam_x, lam_g); ``polish`` (z, (lam_x,
     lam_g)): the polish's answer when it is the run's; ``polish_skip``: how
     many more re-plans skip the polish (it did not lower a recent answer)."""
-    return {"plugin": plugin, "key": key, "floor": float(floor), "offset": int(offset), "z": np.array(z, float),
-            "lam_x": np.array(duals[0], float), "lam_g": np.array(duals[1], float),
-            "polish": polish_state(*polish) if polish else None, "polish_skip": int(polish_skip)}
+    return {"plugin": plugin, "key": key, "floor": float(floor), "offset": int(offset), **_arrays(z, duals),
+            "polish": _arrays(*polish) if polish else None, "polish_skip": int(polish_skip)}
 
 
-def polish_state(z: np.ndarray, duals: tuple) -> dict:
-    """The polish's part of a state: its variables and multipliers."""
+def _arrays(z: np.ndarray, duals: tuple) -> dict:
+    """A stage's variables and multipliers, as a state holds them."""
     return {"z": np.array(z, float), "lam_x": np.array(duals[0], float), "lam_g": np.array(duals[1], float)}
 
 
