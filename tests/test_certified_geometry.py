@@ -61,9 +61,8 @@ def assert_bracketed(poly: Polytope, x0, P0, x1, W, tight: float | None = 1e-5):
     most pairs. A needle (condition 1e8) only has to be bracketed: the
     rounding bound of its certificate value grows with the condition (1e-5
     relative; 1e-3 at a sliver's sharp vertex, whose certificate is large),
-    and in 3-D the generic face solves of G_SS = A_S P A_S^T square it and
-    may lose the minimum (the bounds stay valid; a threshold between them
-    leaves the pair undecided)."""
+    and in 3-D the generic face solves may lose the minimum (the bounds stay
+    valid; a threshold between them leaves the pair undecided)."""
     tm = geo.transition_minimiser(x0, P0, x1, W, [poly])
     lower, upper = tm.lower[:, 0], tm.dist2[:, 0]
     sampled, refined = oracle_transition_min(poly, x0, P0, x1, W, samples=SAMPLES)
@@ -122,6 +121,43 @@ def test_near_flat_hull_regression():
     tm = assert_bracketed(poly, x0, P0, x1, W)
     _, refined = oracle_transition_min(poly, x0, P0, x1, W)
     assert np.all(rel(tm.dist2[:, 0], refined) < 1e-7)
+
+
+SLIVER_3D = [np.array([[-1, 0, -1], [-1, -1, -1], [0, -1, 0.625], [0, y, 0.5]]) for y in (0.0, 1.0)]
+
+
+@pytest.mark.parametrize("pts", SLIVER_3D, ids=["y0", "y1"])
+def test_sliver_tetrahedron_regression(pts):
+    """Hypothesis's 3-D counterexamples (seed 5180242): flat tetrahedra whose
+    opposite faces meet at sharp edges, a needle W and a 1e-9 start. The
+    face solves through G_SS = A_S P A_S^T lost the minimiser's edge (its
+    rows' residuals round to ~eps |G| |mu| with mu ~ 1e10), a vertex with a
+    negative multiplier won, and the bracket's tangent was no tangent: the
+    lower bound came out 0 against a true 2e8. Now within 1e-5 of it."""
+    poly = Polytope.from_vertices(pts.astype(float))
+    rng = np.random.default_rng(5180242)
+    x0, P0, x1, W = hard_transitions(rng, 12, 3, poly)
+    tm = assert_bracketed(poly, x0, P0, x1, W)
+    assert tm.lower[4, 0] > 1.7e8
+
+
+def test_sliver_triangle_regression():
+    """Hypothesis's 2-D counterexample (seed 196): a triangle with a 1.8 deg
+    vertex. Planar path: the certificate's rounding bound counted
+    (|A|^T lam)^T |P| (|A|^T lam), but A^T lam cancels there (lam ~ 7e9), so
+    the lower bound sat 4e-5 below the minimum (1.685e7); the bound now uses
+    |A^T lam|. Generic path (the 3-D code, on request in 2-D): the vertex's
+    value cancelled in mu^T G mu, failed its consistency check, and the
+    minimiser stopped at s = 0 with 16x the minimum."""
+    poly = hull_polytope(np.array([[0.96875, 0.0], [1.0, 0.0], [-0.5, 1.0]]))
+    rng = np.random.default_rng(196)
+    x0, P0, x1, W = hard_transitions(rng, 30, 2, poly)
+    tm = assert_bracketed(poly, x0, P0, x1, W)
+    _, refined = oracle_transition_min(poly, x0, P0, x1, W, samples=SAMPLES)
+    assert rel(tm.lower[11, 0], refined[11]) < 1e-6
+    gen = geo.transition_minimiser(x0, P0, x1, W, [poly], want_lam=True, _generic=True)
+    assert np.all(rel(gen.dist2[:, 0], refined) < 1e-6)
+    assert rel(geo.transition_bounds(x0[11], P0[11], x1[11], W[11], [poly])[0][0, 0], refined[11]) < 1e-6
 
 
 def test_degenerate_vertices_carry_valid_certificates():

@@ -56,14 +56,22 @@ def certificate_lower(A: np.ndarray, b: np.ndarray, x0: np.ndarray, P0: np.ndarr
         return np.einsum("nmk,nmk->nm", a, c)
 
     # magnitudes that bound both ends: |P(s)| <= |P0| + |W|, |x(s)| <= |x0| + |x1|
-    qa = dot(np.matmul(u, np.abs(P0) + np.abs(W)), u)
+    Pa = np.abs(P0) + np.abs(W)
+    # the computed v is within gamma_F u of A^T lam, so |A^T lam| <= va
+    va = np.abs(v) + 1.5 * F * _EPS * u
+    qv = dot(np.matmul(va, Pa), va)
+    qm = dot(np.matmul(va, Pa), u)
+    qa = dot(np.matmul(u, Pa), u)
     lin_a = dot(lam, rows(absA, np.abs(x0) + np.abs(x1)) + np.abs(b))
     # first-order error bounds (Higham's gamma_n ~ n eps), 1.5x for the
     # second-order terms and the rounding of these magnitudes themselves:
-    # v = A^T lam (F terms) perturbs q by 2 gamma_F u^T|P|u, q sums d^2
-    # triple products (and P1 = P0 + W is rounded), A x - b has d + 1 terms
-    # and lam^T r F more, and the final -q + 2 lin one rounding each
-    err = 1.5 * _EPS * ((d * d + 2 * F + 3) * qa + 2.0 * (F + d + 1) * lin_a)
+    # v = A^T lam (F terms, error e <= gamma_F u) perturbs q = v^T P v by
+    # 2 |v|^T |P| |e| + |e|^T |P| |e|, which is 2 gamma_F |v|^T|P|u to first
+    # order -- not u^T|P|u: at a sliver's sharp vertex lam is large and
+    # A^T lam cancels, so u >> |v| (5e-5 relative too pessimistic, seen);
+    # q sums d^2 triple products (and P1 = P0 + W is rounded), A x - b has
+    # d + 1 terms and lam^T r F more, and the final -q + 2 lin one rounding each
+    err = 1.5 * _EPS * ((d * d + 3) * qv + 2 * F * qm + 2.0 * (F + d + 1) * lin_a) + (1.5 * F * _EPS) ** 2 * qa
     f0 = 2.0 * dot(lam, rows(A, x0) - b) - dot(np.matmul(v, P0), v)
     f1 = 2.0 * dot(lam, rows(A, x1) - b) - dot(np.matmul(v, P0 + W), v)
     out = np.minimum(f0, f1)

@@ -25,14 +25,32 @@ from .minimise import TransitionMinimum, _decided, _left_pole, _minimise_bracket
 from .polytopes import PolytopeSet
 
 
-def _solve_small(M: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Solve M z = r for stacks of k x k systems (k <= 3 in closed form)."""
+def _solve_small(M: np.ndarray, r: np.ndarray, BS: np.ndarray | None = None) -> np.ndarray:
+    """Solve M z = r for stacks of k x k systems (k <= 3 in closed form).
+
+    ``BS`` (..., k, d), when given, are the whitened normals with M = BS BS^T
+    (a Gram matrix, k <= d). Two nearly (anti-)parallel planes -- a hull's
+    sliver -- make M's determinant cancel to ~eps cond(M) relative when formed
+    from M, and mu then misses the face (a valid but useless certificate,
+    lower bound 0 against a true 2e8, seen in 3-D); from BS the determinant
+    of k = 2 is the Lagrange identity's sum of squared 2x2 minors, and k = d
+    solves through BS itself: rounding ~eps sqrt(cond(M)) instead.
+    """
     k = M.shape[-1]
     if k == 1:
         return r / M[..., 0, :]
+    if BS is not None and k == BS.shape[-1] and k in (2, 3):
+        inv, det = _inverse_small(BS)
+        out = np.einsum("...ji,...j->...i", inv, np.einsum("...ij,...j->...i", inv, r))   # B^-T B^-1 r
+        return np.where((np.abs(det) > 1e-300)[..., None], out, np.nan)
     if k == 2:
         a, b_, c, d = M[..., 0, 0], M[..., 0, 1], M[..., 1, 0], M[..., 1, 1]
-        det = a * d - b_ * c
+        if BS is None:
+            det = a * d - b_ * c
+        else:
+            u, v = BS[..., 0, :], BS[..., 1, :]
+            det = sum((u[..., i] * v[..., j] - u[..., j] * v[..., i]) ** 2
+                      for i in range(u.shape[-1]) for j in range(i + 1, u.shape[-1]))
         z0 = (d * r[..., 0] - b_ * r[..., 1]) / det
         z1 = (a * r[..., 1] - c * r[..., 0]) / det
         return np.stack([z0, z1], axis=-1)
@@ -41,6 +59,22 @@ def _solve_small(M: np.ndarray, r: np.ndarray) -> np.ndarray:
     ok = np.abs(np.linalg.det(M)) > 1e-300
     out = np.linalg.solve(np.where(ok[..., None, None], M, np.eye(k)), r[..., None])[..., 0]
     return np.where(ok[..., None], out, np.nan)
+
+
+def _inverse_small(B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(B^-1, det B) for stacks of 2 x 2 or 3 x 3 matrices in closed form
+    (adjugate over the determinant; rows b_i: the 3 x 3 adjugate's columns
+    are b_1 x b_2, b_2 x b_0, b_0 x b_1). Singular entries give inf / nan,
+    masked by the caller -- LAPACK would raise for the whole stack."""
+    if B.shape[-1] == 2:
+        a, b_, c, d = B[..., 0, 0], B[..., 0, 1], B[..., 1, 0], B[..., 1, 1]
+        det = a * d - b_ * c
+        adj = np.stack([np.stack([d, -b_], -1), np.stack([-c, a], -1)], -2)
+    else:
+        r0, r1, r2 = B[..., 0, :], B[..., 1, :], B[..., 2, :]
+        adj = np.stack([np.cross(r1, r2), np.cross(r2, r0), np.cross(r0, r1)], -1)
+        det = np.einsum("...i,...i->...", r0, adj[..., 0])
+    return adj / det[..., None, None], det
 
 
 @dataclass
@@ -53,11 +87,13 @@ class _Eval:
 
 def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
               dc: np.ndarray | None = None, dG: np.ndarray | None = None,
-              want_lam: bool = False) -> _Eval:
+              want_lam: bool = False, B: np.ndarray | None = None) -> _Eval:
     """dist2 for N (ellipse, polytope) pairs, and s-derivatives when
     dc = dc/ds and dG = dG/ds are given.
 
-    c (N, F) = b - A x,  G (N, F, F) = A P A^T,  midx (N,) polytope index.
+    c (N, F) = b - A x,  G (N, F, F) = A P A^T,  midx (N,) polytope index;
+    B (N, F, d) = A L with L L^T = P, when given, for the face solves
+    (:func:`_solve_small`).
     """
     N, F = c.shape
     tol = 1e-9 * (np.max(np.abs(c), axis=-1) + ps.scale)
@@ -72,12 +108,19 @@ def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
         n_ar = rows[:, None, None]
         cS = c[n_ar, idx]                                     # (N, C, k)
         GS = G[n_ar[..., None], idx[..., :, None], idx[..., None, :]]   # (N, C, k, k)
-        mu = _solve_small(GS, cS)
+        BS = None if B is None else B[n_ar, idx]              # (N, C, k, d)
+        mu = _solve_small(GS, cS, BS)
         # ||u||^2 of the candidate point u = B_S^T mu itself (B = A L), whose
         # feasibility is checked below: = c_S^T mu in exact arithmetic, but on
         # ill-conditioned faces (slivers) c_S^T mu can even come out negative,
-        # while mu^T G_SS mu is always the distance of a real point
-        val = np.einsum("nck,nckl,ncl->nc", mu, GS, mu)
+        # while ||u||^2 is always the distance of a real point. Formed from u
+        # when B is given: mu^T G_SS mu cancels to ~eps |mu|^T |G_SS| |mu|
+        # at a sliver's sharp vertex (2.5e-6 relative seen), ||u||^2 does not
+        if BS is None:
+            val = np.einsum("nck,nckl,ncl->nc", mu, GS, mu)
+        else:
+            u = np.einsum("nckd,nck->ncd", BS, mu)
+            val = np.einsum("ncd,ncd->nc", u, u)
         ok = mask & np.isfinite(val)
         if k > 1:
             # Faces cut by (nearly) parallel planes -- slivers of a hull -- make
@@ -95,7 +138,15 @@ def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
         if np.any(check_all):
             GcS = G[n_ar[..., None], np.arange(F)[None, None, :, None], idx[:, :, None, :]]  # (N, C, F, k)
             resid = np.einsum("ncfk,nck->ncf", GcS, mu) - c[:, None, :]
-            ok &= np.all(resid <= tol[:, None, None], axis=-1) | ~check_all[midx]
+            # plus the rounding of the product itself: on a sliver's edge mu
+            # is huge (1e10) and residuals round to ~eps |G| |mu| (3e-8
+            # seen), above the fixed part of the tolerance. The rows of S
+            # hold by construction (G_SS mu = c_S) and are not tested: theirs
+            # is only that rounding, and it dropped the minimiser's edge
+            slack = tol[:, None, None] + 16 * np.finfo(float).eps * np.einsum("ncfk,nck->ncf", np.abs(GcS), np.abs(mu))
+            in_S = np.zeros(resid.shape, dtype=bool)
+            np.put_along_axis(in_S, idx, True, axis=-1)
+            ok &= np.all((resid <= slack) | in_S, axis=-1) | ~check_all[midx]
         val = np.where(ok, val, np.inf)
         j = np.argmin(val, axis=-1)
         vbest = val[rows, j]
@@ -113,7 +164,7 @@ def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
             # g = c^T G^-1 c:  g' = 2 c'^T mu - mu^T G' mu,  g'' = 2 r^T G^-1 r, r = c' - G' mu
             r = dcS - np.einsum("nij,nj->ni", dGS, mu_b)
             d1 = 2 * np.einsum("ni,ni->n", dcS, mu_b) - np.einsum("ni,nij,nj->n", mu_b, dGS, mu_b)
-            d2 = 2 * np.einsum("ni,ni->n", r, _solve_small(GSb, r))
+            d2 = 2 * np.einsum("ni,ni->n", r, _solve_small(GSb, r, None if B is None else B[r_ar, idx_b]))
             g1 = np.where(better, d1, g1)
             g2 = np.where(better, d2, g2)
         if want_lam:
@@ -139,6 +190,18 @@ def _prepare(x: np.ndarray, P: np.ndarray, ps: PolytopeSet) -> tuple[np.ndarray,
     return c.reshape(n * m, F), G.reshape(n * m, F, F), midx
 
 
+def _whitened(P: np.ndarray, ps: PolytopeSet) -> np.ndarray | None:
+    """B = A L (n*m, F, d) with L L^T = P (+ the floor), pairs ordered as in
+    :func:`_prepare`; None where a covariance is not numerically positive
+    definite (the face solves then use G alone)."""
+    try:
+        L = np.linalg.cholesky(P + _P_FLOOR * np.eye(P.shape[-1]))
+    except np.linalg.LinAlgError:
+        return None
+    B = np.einsum("mfd,nde->nmfe", ps.A, L)
+    return B.reshape(-1, *B.shape[2:])
+
+
 def _generic_transitions(ps, x0, P0, x1, W, tol, max_iter, want_lam, threshold) -> TransitionMinimum:
     """Any dimension: :func:`_minimise_brackets` on dist2(s) itself, each
     evaluation a full Lemma-1 face enumeration (:func:`_evaluate`)."""
@@ -151,8 +214,12 @@ def _generic_transitions(ps, x0, P0, x1, W, tol, max_iter, want_lam, threshold) 
     dG = np.einsum("nmfe,mge->nmfg", AW, ps.A).reshape(N, F, F)             # dG/ds
 
     def at(s: np.ndarray, sel: np.ndarray) -> _Eval:
+        t = sel // m                                          # pairs are transition-major
+        B = _whitened(P0[t] + s[:, None, None] * W[t], ps)
+        if B is not None:                                     # each pair's own polytope: rows j * m + midx
+            B = B.reshape(sel.size, m, *B.shape[1:])[np.arange(sel.size), midx[sel]]
         return _evaluate(c0[sel] + s[:, None] * dc[sel], G0[sel] + s[:, None, None] * dG[sel],
-                         midx[sel], ps, dc[sel], dG[sel], want_lam)
+                         midx[sel], ps, dc[sel], dG[sel], want_lam, B)
 
     both = np.arange(N)
     e = at(np.concatenate([np.zeros(N), np.ones(N)]), np.concatenate([both, both]))
