@@ -32,11 +32,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import belief
 from ._limits import MAX_VERIFY_SAMPLES
 from .errors import ValidationError
 from .path import BeliefPath
 from ._verify_distances import _psd_part, _sqdist, _support
+from ._verify_kalman import kalman_checks
 from .polytope import Polytope
 from .risk import RiskBound, path_risk
 from .scenario import Scenario, load_scenario
@@ -440,19 +440,7 @@ def _measure(scenario: Scenario, path: BeliefPath, hazards: list[Polytope], name
     slack = T.b - T.A @ xK
     t_maha = np.sign(slack) * slack**2 / aPa - chi2
     # Kalman consistency and sensing
-    kal = np.zeros(K)
-    smin = np.zeros(K)
-    for k in range(1, K + 1):
-        try:
-            Pk = belief.update(path.P_prior[k], path.S[k])
-            kal[k - 1] = np.linalg.norm(Pk - path.P[k]) / max(np.linalg.norm(path.P[k]), 1e-300)
-        except np.linalg.LinAlgError:  # prior not PSD, or P_prior^-1 + S singular
-            kal[k - 1] = np.inf
-        Sn = np.linalg.norm(path.S[k])
-        try:
-            smin[k - 1] = np.linalg.eigvalsh(path.S[k])[0] / Sn if Sn > 0 else 0.0
-        except np.linalg.LinAlgError:
-            smin[k - 1] = np.nan
+    kal, smin = kalman_checks(path)
     # noise model
     if path.noise == "per_step":
         W_model = np.broadcast_to(scenario.W, Wk.shape)

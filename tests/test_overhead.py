@@ -4,6 +4,8 @@ one-at-a-time forms gave."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -114,3 +116,84 @@ def test_a_recorder_keeps_only_its_best_candidates_by_default(recorder):
         assert len(rec.zs) == (5 if keep_all else 0) and len(rec.best) <= 2
         best.append([(c, it, z.tobytes()) for c, it, z in sorted(rec.best)])
     assert best[0] == best[1] and len(best[0]) == 2
+
+
+# ---------------------------------------------------------------- session 16
+def test_update_without_sensing_is_the_prior_and_stacks_agree():
+    """belief.update returns the prior (bit for bit) where nothing is sensed,
+    also through its early exit for an all-zero S, and a stack gives each
+    step's own result."""
+    from belief_nlp import belief
+    rng = np.random.default_rng(5)
+    A = rng.standard_normal((9, 2, 2))
+    Pp = A @ np.swapaxes(A, -1, -2) + 1e-6 * np.eye(2)
+    S = A[::-1] @ np.swapaxes(A[::-1], -1, -2)
+    S[::2] = 0.0
+    assert np.array_equal(belief.update(Pp, np.zeros_like(S)), Pp)
+    assert np.array_equal(belief.update(Pp[0], np.zeros((2, 2))), Pp[0])
+    stacked = belief.update(Pp, S)
+    for k in range(9):
+        assert np.array_equal(stacked[k], belief.update(Pp[k], S[k]))
+    assert np.array_equal(stacked[::2], Pp[::2])
+
+
+def test_batched_kalman_checks_equal_the_step_loop():
+    """verify's Kalman and sensing checks, batched, give the per-step values
+    (inf / NaN where a step cannot be evaluated), also when one prior is
+    not a covariance and the batch falls back to the loop."""
+    from belief_nlp import belief
+    from belief_nlp._verify_kalman import kalman_checks
+    sc, path = paper_multi_path_pair(steps_per_segment=2, sensing=1e-3)
+
+    def loop(p):
+        kal, smin = np.zeros(p.K), np.zeros(p.K)
+        for k in range(1, p.K + 1):
+            try:
+                kal[k - 1] = np.linalg.norm(belief.update(p.P_prior[k], p.S[k]) - p.P[k]) / np.linalg.norm(p.P[k])
+            except np.linalg.LinAlgError:
+                kal[k - 1] = np.inf
+            n = np.linalg.norm(p.S[k])
+            smin[k - 1] = np.linalg.eigvalsh(p.S[k])[0] / n if n > 0 else 0.0
+        return kal, smin
+
+    S = path.S.copy()
+    S[::3] = 0.0                              # steps that sense nothing
+    mixed = bn.BeliefPath.from_sensing(path.x, path.P[0], S[1:], W=sc.W)
+    for p in (path, mixed):
+        kal, smin = kalman_checks(p)
+        ref_kal, ref_smin = loop(p)
+        np.testing.assert_allclose(kal, ref_kal, rtol=0, atol=1e-15)
+        np.testing.assert_array_equal(smin, ref_smin)
+    bad = path.P_prior.copy()
+    bad[3] = -np.eye(2)                       # not a covariance: the batch raises, the loop says inf there
+    kal, _ = kalman_checks(dataclasses.replace(path, P_prior=bad))
+    assert np.isinf(kal[2]) and np.all(np.isfinite(np.delete(kal, 2)))
+
+
+def test_target_posteriors_at_the_path_nodes_are_the_path_posteriors():
+    """A warm start with sensing="path" on the path's own nodes (a re-plan's)
+    takes each node's posterior (the fast path), and at K = 2 x the path's
+    steps the old nodes keep theirs and the new ones the smaller ellipse."""
+    from belief_nlp import belief
+    _, path = paper_multi_path_pair(steps_per_segment=2, sensing=1e-3)
+    same = warmstart._target_posteriors(path, path.x.copy())
+    assert np.array_equal(same, path.P)
+    finer = warmstart.resample_means(path.x, 2 * path.K)
+    out = warmstart._target_posteriors(path, finer)
+    assert np.array_equal(out[::2], path.P)
+    assert np.array_equal(out[1], belief.matrix_minimum(path.P[0], path.P[1]))
+
+
+def test_models_share_functions_only_with_the_same_levels_and_noise():
+    """BeliefModel's CasADi functions are cached by (d, F, levels, scaled W):
+    a model at another collision level or noise shape gets its own (W
+    scaled by a number scales the units, not the scaled problem)."""
+    sc = bn.load_scenario("paper-multi")
+    a, b = BeliefModel(sc, 10), BeliefModel(sc, 20, alpha=0.1)
+    assert a.f_margin_inv is b.f_margin_inv and a.f_kalman is b.f_kalman
+    c = BeliefModel(sc.with_options(chi2_value=2 * sc.chi2), 10)
+    d = BeliefModel(sc.with_options(W=np.diag([1.0, 2.0]) @ sc.W), 10)
+    assert BeliefModel(sc.with_options(W=2 * sc.W), 10).f_kalman is a.f_kalman
+    assert c.f_margin_inv is not a.f_margin_inv and d.f_kalman is not a.f_kalman
+    Y, Q = np.eye(2), 0.5 * np.eye(2)
+    assert float(ca.norm_fro(d.f_kalman(Q, Y) - a.f_kalman(Q, Y))) > 0

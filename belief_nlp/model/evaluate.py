@@ -9,6 +9,7 @@ form of the CCP step.
 
 from __future__ import annotations
 
+import functools
 from functools import cached_property
 
 import casadi as ca
@@ -27,6 +28,29 @@ def _hcat(M: np.ndarray) -> np.ndarray:
     M = np.asarray(M)
     n, r, c = M.shape
     return np.swapaxes(M, 0, 1).reshape(r, n * c)
+
+
+@functools.lru_cache(maxsize=32)
+def _functions(d: int, F: int, chi2: float, chi2_target: float, W: bytes) -> tuple:
+    """The model's CasADi functions of :mod:`.terms` and a dict for their
+    maps, shared by every model with the same dimensions, levels and W: a
+    smoothing call makes two models, and building them took ~4.5 ms each
+    (a tenth of a K = 20 re-plan). CasADi functions are immutable."""
+    x, xp = ca.SX.sym("x", d), ca.SX.sym("x_prev", d)
+    Y, Q, P = ca.SX.sym("Y", d, d), ca.SX.sym("Q", d, d), ca.SX.sym("P", d, d)
+    lam, A, b = ca.SX.sym("lam", F), ca.SX.sym("A", F, d), ca.SX.sym("b", F)
+    a, bt = ca.SX.sym("a", d), ca.SX.sym("bt")
+    Wm = ca.DM(np.frombuffer(W).reshape(d, d))
+    return (ca.Function("step_cost", [xp, x, Y, Q], [terms.control(xp, x), terms.information(Y, Q)],
+                        ["x_prev", "x", "Y", "Q"], ["control", "information"]),
+            ca.Function("margin_inv", [x, Y, lam, A, b], [terms.collision_margin_inv(x, Y, lam, A, b, chi2)],
+                        ["x", "Y", "lam", "A", "b"], ["margin"]),
+            ca.Function("margin_cov", [x, P, lam, A, b], [terms.collision_margin_cov(x, P, lam, A, b, chi2)],
+                        ["x", "P", "lam", "A", "b"], ["margin"]),
+            ca.Function("target_margin", [x, Y, a, bt], [terms.target_margin(x, Y, a, bt, chi2_target)],
+                        ["x", "Y", "a", "b"], ["margin"]),
+            ca.Function("kalman_residual", [Q, Y], [terms.kalman_residual(Q, Y, Wm)], ["Q", "Y_prev"], ["residual"]),
+            {})
 
 
 class BeliefModel:
@@ -57,28 +81,13 @@ class BeliefModel:
         continuous = risk is not None and risk.kind == "continuous"
         self.data = ProblemData.from_scenario(scenario, K, alpha, chi2=chi2, budget=budget, continuous=continuous)
         D = self.data
-        d, F = D.d, D.F
-        x, xp = ca.SX.sym("x", d), ca.SX.sym("x_prev", d)
-        Y, Q, P = ca.SX.sym("Y", d, d), ca.SX.sym("Q", d, d), ca.SX.sym("P", d, d)
-        lam, A, b = ca.SX.sym("lam", F), ca.SX.sym("A", F, d), ca.SX.sym("b", F)
-        a, bt = ca.SX.sym("a", d), ca.SX.sym("bt")
-        self.f_step = ca.Function("step_cost", [xp, x, Y, Q], [terms.control(xp, x), terms.information(Y, Q)],
-                                  ["x_prev", "x", "Y", "Q"], ["control", "information"])
-        self.f_margin_inv = ca.Function("margin_inv", [x, Y, lam, A, b],
-                                        [terms.collision_margin_inv(x, Y, lam, A, b, D.chi2)],
-                                        ["x", "Y", "lam", "A", "b"], ["margin"])
-        self.f_margin_cov = ca.Function("margin_cov", [x, P, lam, A, b],
-                                        [terms.collision_margin_cov(x, P, lam, A, b, D.chi2)],
-                                        ["x", "P", "lam", "A", "b"], ["margin"])
-        self.f_target = ca.Function("target_margin", [x, Y, a, bt], [terms.target_margin(x, Y, a, bt, D.chi2_target)],
-                                    ["x", "Y", "a", "b"], ["margin"])
-        self.f_kalman = ca.Function("kalman_residual", [Q, Y], [terms.kalman_residual(Q, Y, ca.DM(D.W))],
-                                    ["Q", "Y_prev"], ["residual"])
-        self._maps: dict[tuple[str, int], ca.Function] = {}
+        fs = _functions(D.d, D.F, float(D.chi2), float(D.chi2_target), np.ascontiguousarray(D.W, float).tobytes())
+        self.f_step, self.f_margin_inv, self.f_margin_cov, self.f_target, self.f_kalman = fs[:5]
+        self._maps: dict[tuple[str, int], ca.Function] = fs[5]
 
     def _map(self, f: ca.Function, n: int) -> ca.Function:
-        """``f.map(n)``, built once per model (a call evaluates the model's
-        functions a dozen times, each map was built anew: ~0.1 ms each)."""
+        """``f.map(n)``, built once per function set (a call evaluates the
+        model's functions a dozen times, each map was built anew: ~0.1 ms each)."""
         key = (f.name(), n)
         fn = self._maps.get(key)
         if fn is None:

@@ -174,6 +174,8 @@ def _target_posteriors(path: BeliefPath, x_new: np.ndarray) -> np.ndarray:
     """Path posterior at each new node: at old vertices their own, inside an
     edge the matrix minimum of the two ends (the smaller ellipse)."""
     x_old = path.x
+    if x_new.shape == x_old.shape and np.array_equal(x_new, x_old):
+        return path.P.copy()             # the same nodes (a re-plan's K): the loop below gives exactly this
     out = np.empty((x_new.shape[0], path.dim, path.dim))
     j = 0
     for i, p in enumerate(x_new):
