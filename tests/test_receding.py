@@ -332,8 +332,10 @@ def test_autos_default_skips_the_ccp_polish_after_a_resumed_polish(plan10):
 def test_autos_ccp_answer_keeps_ipopts_state_and_the_frozen_step(plan10, monkeypatch):
     """When IPOPT's converged answer is not taken (here made costlier than
     the warm start), auto answers by CCP on the longer horizon's conic step,
-    frozen alike, and keeps IPOPT's state: the next re-plan resumes on the
-    same graph instead of building its horizon."""
+    frozen alike, and keeps IPOPT's state: the next ``ipopt_retry`` re-plans
+    run CCP alone on that step (the answer of ``method="ccp"`` from the same
+    state), and then IPOPT resumes on the same graph instead of building
+    its horizon."""
     from belief_nlp.methods import auto
 
     sc, previous = plan10
@@ -351,10 +353,24 @@ def test_autos_ccp_answer_keeps_ipopts_state_and_the_frozen_step(plan10, monkeyp
     r = bn.replan(moved, first, advance=1, alpha=1.0)
     assert r.method == "auto:ccp" and r.stats["ipopt"]["resumed"] == "yes" and r.stats["ccp"]["frozen"] == 1
     assert r.status == "converged" and bn.verify(moved, r.path).safe and r.cost <= r.initial_cost
-    assert r.resume is not None and r.resume["offset"] == 1
+    assert r.resume is not None and r.resume["offset"] == 1 and r.resume["stage_skip"] == auto.IPOPT_RETRY
+    assert bn.replan(moved, first, advance=1, alpha=1.0, ipopt_retry=0).resume["stage_skip"] == 0
+    with pytest.raises(bn.ValidationError) as err:
+        bn.replan(moved, first, advance=1, alpha=1.0, ipopt_retry=-1)
+    assert err.value.field == "ipopt_retry"
     monkeypatch.setattr(auto.FIRST_STAGE, "run", real)
-    nxt = bn.replan(_moved(sc, r, 1, np.random.default_rng(7)), r, advance=1, alpha=1.0)
-    assert nxt.stats["ipopt"]["resumed"] == "yes" and nxt.resume["offset"] == 2
+    moved2 = _moved(sc, r, 1, np.random.default_rng(7))
+    nxt = bn.replan(moved2, r, advance=1, alpha=1.0)
+    assert nxt.method == "auto:ccp" and nxt.stats["ipopt_skipped"] and "ipopt" not in nxt.stats
+    assert nxt.stats["ccp"]["frozen"] == 2 and nxt.resume["offset"] == 2
+    assert nxt.resume["stage_skip"] == auto.IPOPT_RETRY - 1 and nxt.status == "converged"
+    alone = bn.replan(moved2, r, advance=1, alpha=1.0, method="ccp")
+    assert alone.cost == pytest.approx(nxt.cost, rel=1e-12) and bn.verify(moved2, nxt.path).safe
+    # with the skips spent (or ipopt_retry=0) IPOPT resumes on the same graph
+    spent = dataclasses.replace(r, resume={**r.resume, "stage_skip": 0})
+    back = bn.replan(moved2, spent, advance=1, alpha=1.0)
+    assert back.stats["ipopt"]["resumed"] == "yes" and back.resume["offset"] == 2
+    assert back.resume["stage_skip"] == 0 or back.method == "auto:ccp"
 
 
 @pytest.mark.parametrize("offset", [-1, 1.0, True, "1"])

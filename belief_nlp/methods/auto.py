@@ -30,6 +30,16 @@ point) and the history holds both stages' records. Each outcome keeps
 IPOPT's state (``SmoothResult.resume``) when IPOPT converged, "auto:ccp"
 too: a re-plan after executed steps then resumes IPOPT on the same graph,
 and both CCP stages use that graph's conic step, frozen alike.
+
+After an "auto:ccp" answer whose IPOPT stage converged above the warm
+start (or unsafe), the next ``ipopt_retry`` (4) re-plans run CCP alone from
+their warm start, the last answer moved on, and IPOPT is tried again after
+them. Resumed from its own earlier answer, IPOPT lands near that local
+optimum again, above CCP's: at K = 80 on paper-multi it spent 1.4-2.9 s of
+a 2.4-4.6 s re-plan for nothing, and CCP alone gave the same cost in
+1.0-1.5 s (docs/numerics.md, "The work around a loop step, and auto in a
+loop at K = 80 (session 16)").
+``stats["ipopt_skipped"]`` marks such runs.
 """
 
 from __future__ import annotations
@@ -45,6 +55,9 @@ __all__ = ["run", "FIRST_STAGE", "POLISH"]
 
 #: CCP polish steps after a converged IPOPT answer (``ccp_polish=None``, without a risk budget)
 POLISH = 10
+
+#: re-plans that run CCP alone after an answer CCP gave because IPOPT's was not taken
+IPOPT_RETRY = 4
 
 #: the NLP method of the first stage: ``ipopt`` (or ``fatrop``: one line to
 #: switch). IPOPT stays: on the same NLP and warm starts fatrop stops at
@@ -78,20 +91,35 @@ def _totals(stats: dict, answer: str) -> dict:
     stages = [stats[k] for k in ("ipopt", "ccp") if k in stats]
     stats["iter_count"] = int(sum(s.get("iter_count", 0) for s in stages))
     stats["cpu_time"] = float(sum(s.get("cpu_time", 0.0) for s in stages))
-    stats["restoration"] = stats["ipopt"].get("restoration")
+    stats["restoration"] = stats.get("ipopt", {}).get("restoration")
     stats["return_status"] = stats.get(answer, {}).get("return_status", "")
     return stats
 
 
+def _ccp_alone(problem: SmoothingProblem, state: dict, ccp_opts: tuple) -> Outcome:
+    """A re-plan after an answer CCP gave because IPOPT's was not taken: CCP
+    from the warm start on the state's conic step, IPOPT's state kept with
+    one skip less (module doc)."""
+    skip = int(state["stage_skip"])
+    second = _stage(problem, problem.max_iter, ccp.run, *ccp_opts, _start=problem.start,
+                    _prefix=int(state["offset"]))
+    stats = {"ccp": second.stats, "stages": ["ccp"], "ipopt_skipped": True}
+    return Outcome(second.status, f"IPOPT skipped (the last answer was CCP's; {skip - 1} more re-plans skip it); "
+                                  f"CCP: {second.message}", None, ccp_opts[0], _totals(stats, "ccp"), "auto:ccp",
+                   {**state, "stage_skip": skip - 1})
+
+
 def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | None = None, ccp_solver: str = "CLARABEL",
         ccp_solver_options: dict | None = None, ipopt_options: dict | None = None,
-        resume: dict | None = None) -> Outcome:
+        ipopt_retry: int = IPOPT_RETRY, resume: dict | None = None) -> Outcome:
     """IPOPT, then CCP when IPOPT's answer is not taken (module doc). The
     run's ``solver_options`` go to IPOPT; CCP's come from ``ccp_solver_options``;
     ``ipopt_options`` are the first stage's method options (``floor``,
     ``polish``, ...: those of ``method="ipopt"``); ``resume`` goes to the
     IPOPT stage unless ``ipopt_options`` gives its own."""
     ccp_opts = (ccp_solver, ccp_solver_options or {})
+    if resume is not None and (ipopt_options or {}).get("resume") is None and resume.get("stage_skip", 0) > 0:
+        return _ccp_alone(problem, resume, ccp_opts)
     polish_default = ccp_polish is None
     if ccp_polish is None:       # under a risk budget a CCP step is ~10x dearer (no active-set step): no polish
         ccp_polish = POLISH if problem.model.data.budget is None else 0
@@ -130,9 +158,11 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
     second = _stage(problem, problem.max_iter, ccp.run, *ccp_opts, _start=start, _prefix=prefix)
     stats.update(ccp=second.stats, stages=["ipopt", "ccp"])
     # IPOPT's state, when it converged (above the warm start, or refused): a later
-    # re-plan resumes it on this graph instead of building the next horizon's
+    # re-plan resumes it on this graph instead of building the next horizon's, after
+    # ipopt_retry re-plans that run CCP alone (IPOPT's answer would not be taken again)
+    state = None if first.resume is None else {**first.resume, "stage_skip": int(ipopt_retry)}
     return Outcome(second.status, f"IPOPT: {first.status}; CCP from the best safe point: {second.message}",
-                   None, ccp_solver, _totals(stats, "ccp"), "auto:ccp", first.resume)
+                   None, ccp_solver, _totals(stats, "ccp"), "auto:ccp", state)
 
 
 def _count(v: Any) -> str | None:
@@ -167,6 +197,9 @@ METHOD = register(Method(
              "ccp_solver": Option("CLARABEL", "conic solver of the CCP stage", ccp._check_solver),
              "ccp_solver_options": Option(None, "solver options of the CCP stage (solver_options go to IPOPT)",
                                           lambda v: None if v is None or isinstance(v, dict) else "must be a dict"),
+             "ipopt_retry": Option(IPOPT_RETRY, "re-plans (bn.replan) after an answer CCP gave because IPOPT's "
+                                                "was not taken that run CCP alone from the warm start, before "
+                                                "IPOPT is tried again (0: IPOPT every time)", _count),
              "ipopt_options": Option(None, "method options of the IPOPT stage, e.g. {'floor': 5e-3} (those of "
                                            "method 'ipopt'; solver_options are IPOPT's own)",
                                      _check_first_stage_options),

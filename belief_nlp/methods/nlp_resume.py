@@ -32,19 +32,23 @@ import numpy as np
 
 __all__ = ["state", "matches", "check", "advanced"]
 
-_KEYS = {"plugin", "key", "floor", "offset", "z", "lam_x", "lam_g", "polish", "polish_skip"}
+_KEYS = {"plugin", "key", "floor", "offset", "z", "lam_x", "lam_g", "polish", "polish_skip", "stage_skip"}
 
 
 def state(plugin: str, key: str, floor: float, z: np.ndarray, duals: tuple, offset: int = 0,
-          polish: tuple | None = None, polish_skip: int = 0) -> dict:
+          polish: tuple | None = None, polish_skip: int = 0, stage_skip: int = 0) -> dict:
     """The resumable state of a converged first stage: the graph's key (the
     scenario and K without the start belief and alpha), the floor, the
     steps of that graph frozen before the answer's (``offset``), the
     variables and the multipliers (lam_x, lam_g); ``polish`` (z, (lam_x,
     lam_g)): the polish's answer when it is the run's; ``polish_skip``: how
-    many more re-plans skip the polish (it did not lower a recent answer)."""
+    many more re-plans skip the polish (it did not lower a recent answer);
+    ``stage_skip``: how many more re-plans a composite method runs without
+    this NLP stage (``auto``, after an answer CCP gave because IPOPT's was
+    not taken; the NLP methods themselves ignore it)."""
     return {"plugin": plugin, "key": key, "floor": float(floor), "offset": int(offset), **_arrays(z, duals),
-            "polish": _arrays(*polish) if polish else None, "polish_skip": int(polish_skip)}
+            "polish": _arrays(*polish) if polish else None, "polish_skip": int(polish_skip),
+            "stage_skip": int(stage_skip)}
 
 
 def _arrays(z: np.ndarray, duals: tuple) -> dict:
@@ -76,7 +80,7 @@ def check(v: Any) -> str | None:
 
     arrays_ok = isinstance(v, dict) and set(v) == _KEYS and arrays(v) and (v["polish"] is None or arrays(v["polish"]))
     counts_ok = arrays_ok and all(isinstance(v[k], int) and not isinstance(v[k], bool) and v[k] >= 0
-                                  for k in ("offset", "polish_skip"))
+                                  for k in ("offset", "polish_skip", "stage_skip"))
     if not counts_ok:
         return "must be None or a SmoothResult's resume state (SmoothResult.resume)"
     return None

@@ -46,6 +46,7 @@ from .. import belief
 from ..errors import InfeasibleStartError, ValidationError
 from ..geometry import PolytopeSet, containment_margin, transition_minimiser
 from ..model import terms
+from ..model.evaluate import _hcat
 from .policy import DEFAULT_POLICY
 from ..path import BeliefPath
 from ..scenario import Scenario
@@ -388,6 +389,13 @@ def _margin_parts(F: int, d: int) -> ca.Function:
                                                            terms.bilinear(lam, x, A, b)])
 
 
+@lru_cache(maxsize=16)
+def _margin_map(F: int, d: int, n: int) -> ca.Function:
+    """:func:`_margin_parts` mapped over n pairs, built once per shape (a
+    re-plan in a loop asks for the same one every time)."""
+    return _margin_parts(F, d).map(n)
+
+
 def certificates(scenario: Scenario, path: BeliefPath, hazards: PolytopeSet | None = None,
                  margin: float = _START_MARGIN, chi2: float | np.ndarray | None = None) -> np.ndarray:
     """Theorem-1 certificates (K, J, F), SI units, for every transition of a path.
@@ -423,10 +431,10 @@ def segment_certificates(x0: np.ndarray, P0: np.ndarray, x1: np.ndarray, Wn: np.
     K, J, F = lam.shape
     A = np.tile(hazards.A, (K, 1, 1))
     t_min = np.zeros((K, J))
+    parts = _margin_map(F, x0.shape[1], K * J)
     for xe, Pe in ((x0, P0), (x1, P1)):
-        Ps = np.concatenate(list(np.repeat(Pe, J, axis=0)), axis=1)
-        a, h = _margin_parts(F, xe.shape[1]).map(K * J)(np.repeat(xe, J, axis=0).T, Ps, lam.reshape(K * J, F).T,
-                                                        np.concatenate(list(A), axis=1), np.tile(hazards.b, (K, 1)).T)
+        a, h = parts(np.repeat(xe, J, axis=0).T, _hcat(np.repeat(Pe, J, axis=0)), lam.reshape(K * J, F).T,
+                     _hcat(A), np.tile(hazards.b, (K, 1)).T)
         a = a.full().reshape(K, J)
         beta = 0.5 * h.full().reshape(K, J)
         with np.errstate(divide="ignore", invalid="ignore"):
