@@ -139,6 +139,13 @@ def test_sliver_tetrahedron_regression(pts):
     x0, P0, x1, W = hard_transitions(rng, 12, 3, poly)
     tm = assert_bracketed(poly, x0, P0, x1, W)
     assert tm.lower[4, 0] > 1.7e8
+    # the static distance and certificate at the minimiser (the same face solves)
+    s = tm.s[4, 0]
+    x, P = x0[4] + s * (x1[4] - x0[4]), P0[4] + s * W[4]
+    assert rel(geo.squared_mahalanobis_distance(x, P, [poly])[0, 0], tm.dist2[4, 0]) < 1e-7
+    lam = geo.ellipse_certificate(x, P, poly.A, poly.b)
+    v = poly.A.T @ lam
+    assert rel(2 * lam @ (poly.A @ x - poly.b) - v @ P @ v, tm.dist2[4, 0]) < 1e-6
 
 
 def test_sliver_triangle_regression():

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._numeric import _batch, _quiet
-from .generic import _evaluate, _prepare
+from .generic import _evaluate, _prepare, _whitened
 from .planar import _planar_points
 from .polytopes import _as_set
 
@@ -32,7 +32,7 @@ def squared_mahalanobis_distance(x, P, polytopes) -> np.ndarray:
     if ps.planar is not None:
         return _planar_points(ps.planar, xb, np.broadcast_to(Pb, (xb.shape[0], 2, 2)))
     c, G, midx = _prepare(xb, Pb, ps)
-    return _evaluate(c, G, midx, ps).g.reshape(xb.shape[0], len(ps))
+    return _evaluate(c, G, midx, ps, B=_whitened(Pb, ps)).g.reshape(xb.shape[0], len(ps))
 
 
 def ellipse_clearances(x, P, polytopes, chi2: float) -> np.ndarray:
@@ -64,7 +64,7 @@ def ellipse_certificate(x, P, A, b) -> np.ndarray:
     ps = _as_set(A, b)
     xb, Pb, _ = _batch(x, P)
     c, G, midx = _prepare(xb, Pb, ps)
-    lam = _evaluate(c, G, midx, ps, want_lam=True).lam[0, : ps.n_faces[0]]
+    lam = _evaluate(c, G, midx, ps, want_lam=True, B=_whitened(Pb, ps)).lam[0, : ps.n_faces[0]]
     return np.maximum(lam, 0.0)
 
 
