@@ -15,7 +15,8 @@ import belief_nlp.smoother.warmstart as warmstart
 from belief_nlp.methods.nlp_recorder import Recorder
 from belief_nlp.model import BeliefModel
 from belief_nlp.model.evaluate import _hcat
-from belief_nlp.model.nlp_form import _psd_factor, build_nlp
+from belief_nlp.model.nlp_form import build_nlp
+from belief_nlp.model.nlp_matrices import _psd_factor
 
 from conftest import paper_multi_path_pair
 

@@ -247,7 +247,7 @@ def _initial_guess(sc: Scenario, ref: np.ndarray, sigma: float) -> tuple[np.ndar
     start for the first MPC solve (later solves start from the shifted plan).
     Smallest valid certificates start IPOPT better than the margin-maximising
     ones (see nlp/ipopt.py)."""
-    from ..model.nlp_form import _psd_factor
+    from ..model.nlp_matrices import _psd_factor
     from ..smoother.warmstart import warm_start
 
     d = sc.dim

@@ -218,7 +218,7 @@ class BeliefMPC:
     def input(self, x: np.ndarray, x_next: np.ndarray, S: np.ndarray, lam: np.ndarray) -> np.ndarray:
         """The input vector of an SI step (x -> x_next [m], sensing S [1/m^2]) with
         scaled certificates ``lam`` (J F); slacks zero."""
-        from ..model.nlp_form import _psd_factor
+        from ..model.nlp_matrices import _psd_factor
 
         L = _psd_factor(np.asarray(S, float) * self.sigma ** 2)
         return np.concatenate([(np.asarray(x_next) - np.asarray(x)) / self.sigma, [L[i, j] for i, j in self.tri],

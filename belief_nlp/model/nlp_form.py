@@ -42,6 +42,7 @@ from ..errors import ValidationError
 from . import terms
 from .data import Layout, ProblemData
 from .evaluate import BeliefModel
+from .nlp_matrices import _lower, _psd_factor, _sym_inv, _symmetric, _tri_index
 
 __all__ = ["NLPProblem", "build_nlp", "FORMULATIONS"]
 
@@ -315,42 +316,6 @@ def start_values(D: ProblemData) -> np.ndarray:
     computed here in numpy, as the constants they replaced were."""
     return np.concatenate([D.x0, D.P0.ravel(order="F"), D.Q1.ravel(order="F"),
                            [float(np.linalg.slogdet(D.Q1)[1])]])
-
-
-def _tri_index(d: int) -> list[tuple[int, int]]:
-    return [(i, j) for i in range(d) for j in range(i + 1)]
-
-
-def _lower(v: ca.SX, tri: list, d: int) -> ca.SX:
-    M = ca.SX.zeros(d, d)
-    for p, (i, j) in enumerate(tri):
-        M[i, j] = v[p]
-    return M
-
-
-def _symmetric(v: ca.SX, tri: list, d: int) -> ca.SX:
-    M = ca.SX.zeros(d, d)
-    for p, (i, j) in enumerate(tri):
-        M[i, j] = v[p]
-        M[j, i] = v[p]
-    return M
-
-
-def _sym_inv(M: ca.SX) -> ca.SX:
-    """Inverse of a symmetric matrix expression, symmetrised."""
-    Mi = ca.inv(M)
-    return 0.5 * (Mi + Mi.T)
-
-
-def _psd_factor(S: np.ndarray) -> np.ndarray:
-    """Lower Cholesky factor of the PSD part of S (a tiny jitter for S = 0);
-    of each matrix of a stack (n, d, d) too."""
-    S = 0.5 * (S + np.swapaxes(S, -1, -2))
-    w, V = np.linalg.eigh(S)
-    Sp = (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
-    # fmax: a NaN trace gives 1.0, as max(1.0, nan) did one matrix at a time
-    jitter = 1e-12 * np.fmax(1.0, np.trace(Sp, axis1=-2, axis2=-1))
-    return np.linalg.cholesky(Sp + jitter[..., None, None] * np.eye(S.shape[-1]))
 
 
 def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float = 1e-6,

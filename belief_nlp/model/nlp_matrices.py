@@ -1,0 +1,45 @@
+"""Matrix helpers of the NLP form (:mod:`.nlp_form`): the packing of a
+lower-triangular or symmetric d x d matrix into its d (d + 1) / 2 entries,
+a symmetrised symbolic inverse, and the numeric Cholesky factor of a
+sensing matrix's PSD part (the L of a warm start's S = L L^T)."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+
+def _tri_index(d: int) -> list[tuple[int, int]]:
+    return [(i, j) for i in range(d) for j in range(i + 1)]
+
+
+def _lower(v: ca.SX, tri: list, d: int) -> ca.SX:
+    M = ca.SX.zeros(d, d)
+    for p, (i, j) in enumerate(tri):
+        M[i, j] = v[p]
+    return M
+
+
+def _symmetric(v: ca.SX, tri: list, d: int) -> ca.SX:
+    M = ca.SX.zeros(d, d)
+    for p, (i, j) in enumerate(tri):
+        M[i, j] = v[p]
+        M[j, i] = v[p]
+    return M
+
+
+def _sym_inv(M: ca.SX) -> ca.SX:
+    """Inverse of a symmetric matrix expression, symmetrised."""
+    Mi = ca.inv(M)
+    return 0.5 * (Mi + Mi.T)
+
+
+def _psd_factor(S: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factor of the PSD part of S (a tiny jitter for S = 0);
+    of each matrix of a stack (n, d, d) too."""
+    S = 0.5 * (S + np.swapaxes(S, -1, -2))
+    w, V = np.linalg.eigh(S)
+    Sp = (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
+    # fmax: a NaN trace gives 1.0, as max(1.0, nan) did one matrix at a time
+    jitter = 1e-12 * np.fmax(1.0, np.trace(Sp, axis1=-2, axis2=-1))
+    return np.linalg.cholesky(Sp + jitter[..., None, None] * np.eye(S.shape[-1]))
