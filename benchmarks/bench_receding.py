@@ -18,7 +18,14 @@ same beliefs. Per re-plan: CPU, wall, iterations, cost, status, whether
 IPOPT resumed, what was built, and the independent verification. One
 process, after the first answer (the imports and the K graph built).
 
-    python benchmarks/bench_receding.py [--K 20 40] [--seeds 4] [--steps 5] [--method ipopt] [--ccp-polish N] [--out FILE]
+``--compiled`` runs the frozen loop only, with the derivative functions of
+the K graphs compiled (``bn.set_disk_cache(folder, compile=True)``): a
+first process fills a fresh cache folder and starts the background builds,
+which are waited for; the loop then loads the libraries (what an MPC
+deployment that compiled once pays per step).
+
+    python benchmarks/bench_receding.py [--K 20 40] [--seeds 4] [--steps 5] [--method ipopt] [--ccp-polish N]
+                                        [--compiled] [--out FILE]
 """
 
 from __future__ import annotations
@@ -26,6 +33,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -71,6 +81,53 @@ def _loop(sc0, first, beliefs, method: str, frozen: bool, kw: dict) -> list[dict
     return rows
 
 
+def _summary(rows: list[dict], fz: list[dict]) -> dict:
+    """Medians of the frozen re-plans, and against the building ones where they ran."""
+    out = {
+        "replans": len(fz), "seeds": len(rows),
+        "median_cpu_frozen_s": float(np.median([a["cpu_s"] for a in fz])),
+        "max_cpu_frozen_s": float(np.max([a["cpu_s"] for a in fz])),
+        "median_wall_frozen_s": float(np.median([a["wall_s"] for a in fz])),
+        "median_iterations_frozen": float(np.median([a["iterations"] for a in fz])),
+        "verified_frozen": int(sum(a["verified"] for a in fz)),
+        "resumed_yes": int(sum(a["resumed"] == "yes" for a in fz)),
+        "resumed_polish": int(sum(a.get("resumed_stage") == "polish" for a in fz)),
+        "ccp_polish_frozen": int(sum(bool(a.get("ccp_frozen")) for a in fz)),
+        "statuses_frozen": {s: int(sum(a["status"] == s for a in fz)) for s in sorted({a["status"] for a in fz})},
+        "infeasible_starts": int(sum(r["frozen"][-1]["status"] == "infeasible_start" for r in rows if r["frozen"])),
+    }
+    pairs = [(a, b) for r in rows for a, b in zip(r["frozen"], r["path"]) if "cost" in a and "cost" in b]
+    if pairs:
+        pa = [b for _, b in pairs]
+        rel = np.array([(a["cost"] - b["cost"]) / b["cost"] for a, b in pairs])
+        out.update({
+            "median_cpu_path_s": float(np.median([b["cpu_s"] for b in pa])),
+            "median_iterations_path": float(np.median([b["iterations"] for b in pa])),
+            "cost_frozen_over_path_minus_1": [float(rel.min()), float(np.median(rel)), float(rel.max())],
+            "verified": [int(sum(a["verified"] for a, _ in pairs)), int(sum(b["verified"] for b in pa))],
+            "statuses_path": {s: int(sum(b["status"] == s for b in pa)) for s in sorted({b["status"] for b in pa})},
+        })
+    return out
+
+
+def _compiled_cache(Ks: list[int], method: str) -> Path:
+    """A cache folder holding the compiled derivatives of paper-multi's graph
+    at each K (one graph per K: the start belief and alpha are parameters),
+    filled by a separate process; waits for the background builds."""
+    folder = Path(tempfile.mkdtemp(prefix="bench_receding_compiled_"))
+    fill = ("import belief_nlp as bn; bn.set_disk_cache({f!r}, compile=True); sc = bn.load_scenario('paper-multi'); "
+            "p = bn.plan(sc, n_nodes=500, seed=0, noise='per_step'); "
+            "[bn.smooth(sc, bn.warm_start(sc, p.path, K=K), method={m!r}, alpha=1.0) for K in {Ks!r}]")
+    subprocess.run([sys.executable, "-c", fill.format(f=str(folder), m=method, Ks=list(Ks))], check=True)
+    t0 = time.monotonic()
+    while list(folder.glob(".*.compiling")) or len(list(folder.glob("*.cso.pkl"))) < len(Ks):
+        if time.monotonic() - t0 > 3600:
+            raise SystemExit("the background compilation did not finish in an hour")
+        time.sleep(2)
+    print(f"compiled {len(list(folder.glob('*.lib.so')))} libraries in {time.monotonic() - t0:.0f} s", flush=True)
+    return folder
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--K", type=int, nargs="+", default=[20, 40])
@@ -78,8 +135,13 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=5)
     ap.add_argument("--method", default="ipopt")
     ap.add_argument("--ccp-polish", type=int, default=None, help="auto's ccp_polish (default: auto's)")
+    ap.add_argument("--compiled", action="store_true",
+                    help="the frozen loop only, on compiled derivative functions (a fresh disk cache)")
     ap.add_argument("--out", type=Path, default=HERE / "receding.json")
     args = ap.parse_args()
+    if args.compiled:
+        bn.set_disk_cache(_compiled_cache(args.K, args.method), compile=True)
+    modes = ("frozen",) if args.compiled else ("frozen", "path")
     kw = {} if args.ccp_polish is None else {"ccp_polish": args.ccp_polish}
     t0, load0 = time.time(), os.getloadavg()
     sc0 = bn.load_scenario("paper-multi")
@@ -92,7 +154,8 @@ def main() -> None:
                 continue
             first = bn.smooth(sc0, bn.warm_start(sc0, plan.path, K=K), method=args.method, alpha=1.0, **kw)
             beliefs = _beliefs(seed, args.steps)
-            loops = {mode: _loop(sc0, first, beliefs, args.method, mode == "frozen", kw) for mode in ("frozen", "path")}
+            loops = {mode: _loop(sc0, first, beliefs, args.method, mode == "frozen", kw) for mode in modes}
+            loops.setdefault("path", [{} for _ in loops["frozen"]])
             rows.append({"K": K, "seed": seed, "first_cost": float(first.cost), "first_iterations": int(first.nit),
                          **loops})
             for a, b in zip(loops["frozen"], loops["path"]):
@@ -101,28 +164,9 @@ def main() -> None:
                       f"{b.get('cpu_s', float('nan')):.3f} s {b.get('iterations')} its "
                       f"{b.get('cost', float('nan')):.7f}", flush=True)
         records += rows
-        pairs = [(a, b) for r in rows for a, b in zip(r["frozen"], r["path"]) if "cost" in a and "cost" in b]
-        if not pairs:
-            continue
-        fz, pa = zip(*pairs)
-        rel = np.array([(a["cost"] - b["cost"]) / b["cost"] for a, b in pairs])
-        table[f"K={K}"] = {
-            "replans": len(pairs), "seeds": len(rows),
-            "median_cpu_frozen_s": float(np.median([a["cpu_s"] for a in fz])),
-            "median_cpu_path_s": float(np.median([b["cpu_s"] for b in pa])),
-            "max_cpu_frozen_s": float(np.max([a["cpu_s"] for a in fz])),
-            "median_wall_frozen_s": float(np.median([a["wall_s"] for a in fz])),
-            "median_iterations_frozen": float(np.median([a["iterations"] for a in fz])),
-            "median_iterations_path": float(np.median([b["iterations"] for b in pa])),
-            "cost_frozen_over_path_minus_1": [float(rel.min()), float(np.median(rel)), float(rel.max())],
-            "verified": [int(sum(a["verified"] for a in fz)), int(sum(b["verified"] for b in pa))],
-            "resumed_yes": int(sum(a["resumed"] == "yes" for a in fz)),
-            "resumed_polish": int(sum(a.get("resumed_stage") == "polish" for a in fz)),
-            "ccp_polish_frozen": int(sum(bool(a.get("ccp_frozen")) for a in fz)),
-            "statuses_frozen": {s: int(sum(a["status"] == s for a in fz)) for s in sorted({a["status"] for a in fz})},
-            "statuses_path": {s: int(sum(b["status"] == s for b in pa)) for s in sorted({b["status"] for b in pa})},
-            "infeasible_starts": int(sum(r["frozen"][-1]["status"] == "infeasible_start" for r in rows if r["frozen"])),
-        }
+        fz = [a for r in rows for a in r["frozen"] if "cost" in a]
+        if fz:
+            table[f"K={K}"] = _summary(rows, fz)
     write_record(args.out, args, table, records, t0, load0)
 
 
