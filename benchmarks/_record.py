@@ -35,3 +35,17 @@ def write_record(out: Path, args, table: dict, records: list, t0: float, load0: 
     out.write_text(json.dumps(doc, indent=1, default=str))
     print(json.dumps(table, indent=1))
     return doc
+
+
+def wait_for_compiled(folder: Path, expected: int, limit_s: float = 3600.0) -> float:
+    """Wait until the disk cache ``folder`` holds ``expected`` compiled
+    derivative entries and no background build runs; returns the seconds
+    waited (the benchmarks that time compiled derivatives start after it)."""
+    t0 = time.monotonic()
+    while list(folder.glob(".*.compiling")) or len(list(folder.glob("*.cso.pkl"))) < expected:
+        if time.monotonic() - t0 > limit_s:
+            raise SystemExit(f"the background compilation did not finish in {limit_s:.0f} s")
+        time.sleep(2)
+    waited = time.monotonic() - t0
+    print(f"compiled {len(list(folder.glob('*.lib.so')))} libraries in {waited:.0f} s", flush=True)
+    return waited

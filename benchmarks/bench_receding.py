@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 import belief_nlp as bn
-from _record import write_record
+from _record import wait_for_compiled, write_record
 from belief_nlp.methods.nlp_build import clear_cache
 from belief_nlp.model.cache import MEMORY
 
@@ -119,12 +119,7 @@ def _compiled_cache(Ks: list[int], method: str) -> Path:
             "p = bn.plan(sc, n_nodes=500, seed=0, noise='per_step'); "
             "[bn.smooth(sc, bn.warm_start(sc, p.path, K=K), method={m!r}, alpha=1.0) for K in {Ks!r}]")
     subprocess.run([sys.executable, "-c", fill.format(f=str(folder), m=method, Ks=list(Ks))], check=True)
-    t0 = time.monotonic()
-    while list(folder.glob(".*.compiling")) or len(list(folder.glob("*.cso.pkl"))) < len(Ks):
-        if time.monotonic() - t0 > 3600:
-            raise SystemExit("the background compilation did not finish in an hour")
-        time.sleep(2)
-    print(f"compiled {len(list(folder.glob('*.lib.so')))} libraries in {time.monotonic() - t0:.0f} s", flush=True)
+    wait_for_compiled(folder, len(Ks))
     return folder
 
 

@@ -60,6 +60,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from _record import wait_for_compiled  # noqa: E402
+
 RESULTS = Path(__file__).resolve().parent / "results"
 SCENARIO = "paper-multi"
 ALPHAS = (0.1, 1.0)
@@ -166,12 +168,7 @@ def _compiled_env(args) -> dict:
     folder = Path(tempfile.mkdtemp(prefix="bench_smooth_wall_compiled_"))
     env = {**_plain_env(), "BELIEF_NLP_CACHE_DIR": str(folder), "BELIEF_NLP_CACHE_COMPILE": "1"}
     _run_worker(None, args, env)
-    t0 = time.monotonic()
-    while list(folder.glob(".*.compiling")) or len(list(folder.glob("*.cso.pkl"))) < len(list(folder.glob("*.nlp.pkl"))):
-        if time.monotonic() - t0 > 3600:
-            raise SystemExit("the background compilation did not finish in an hour")
-        time.sleep(2)
-    print(f"compiled {len(list(folder.glob('*.lib.so')))} libraries in {time.monotonic() - t0:.0f} s", flush=True)
+    wait_for_compiled(folder, len(list(folder.glob("*.nlp.pkl"))))
     return env
 
 
