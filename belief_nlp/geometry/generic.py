@@ -39,21 +39,18 @@ def _solve_small(M: np.ndarray, r: np.ndarray, BS: np.ndarray | None = None) -> 
     k = M.shape[-1]
     if k == 1:
         return r / M[..., 0, :]
-    if BS is not None and k == BS.shape[-1] and k in (2, 3):
-        inv, det = _inverse_small(BS)
+    if BS is not None and k == BS.shape[-1] and k <= 3:
+        adj, det = _adjugate(BS)
+        inv = adj / det[..., None, None]
         out = np.einsum("...ji,...j->...i", inv, np.einsum("...ij,...j->...i", inv, r))   # B^-T B^-1 r
         return np.where((np.abs(det) > 1e-300)[..., None], out, np.nan)
     if k == 2:
-        a, b_, c, d = M[..., 0, 0], M[..., 0, 1], M[..., 1, 0], M[..., 1, 1]
-        if BS is None:
-            det = a * d - b_ * c
-        else:
+        adj, det = _adjugate(M)
+        if BS is not None:                    # the Gram determinant of BS's two rows, without cancellation
             u, v = BS[..., 0, :], BS[..., 1, :]
             det = sum((u[..., i] * v[..., j] - u[..., j] * v[..., i]) ** 2
                       for i in range(u.shape[-1]) for j in range(i + 1, u.shape[-1]))
-        z0 = (d * r[..., 0] - b_ * r[..., 1]) / det
-        z1 = (a * r[..., 1] - c * r[..., 0]) / det
-        return np.stack([z0, z1], axis=-1)
+        return np.einsum("...ij,...j->...i", adj, r) / det[..., None]
     # padded / degenerate candidate sets are singular: give them nan (masked
     # out as infeasible) instead of letting LAPACK raise
     ok = np.abs(np.linalg.det(M)) > 1e-300
@@ -61,20 +58,17 @@ def _solve_small(M: np.ndarray, r: np.ndarray, BS: np.ndarray | None = None) -> 
     return np.where(ok[..., None], out, np.nan)
 
 
-def _inverse_small(B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(B^-1, det B) for stacks of 2 x 2 or 3 x 3 matrices in closed form
-    (adjugate over the determinant; rows b_i: the 3 x 3 adjugate's columns
-    are b_1 x b_2, b_2 x b_0, b_0 x b_1). Singular entries give inf / nan,
+def _adjugate(B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(adj B, det B) for stacks of 2 x 2 or 3 x 3 matrices, in closed form
+    (rows b_i: the 3 x 3 adjugate's columns are b_1 x b_2, b_2 x b_0,
+    b_0 x b_1), so B^-1 = adj / det. A singular entry gives inf / nan there,
     masked by the caller -- LAPACK would raise for the whole stack."""
     if B.shape[-1] == 2:
         a, b_, c, d = B[..., 0, 0], B[..., 0, 1], B[..., 1, 0], B[..., 1, 1]
-        det = a * d - b_ * c
-        adj = np.stack([np.stack([d, -b_], -1), np.stack([-c, a], -1)], -2)
-    else:
-        r0, r1, r2 = B[..., 0, :], B[..., 1, :], B[..., 2, :]
-        adj = np.stack([np.cross(r1, r2), np.cross(r2, r0), np.cross(r0, r1)], -1)
-        det = np.einsum("...i,...i->...", r0, adj[..., 0])
-    return adj / det[..., None, None], det
+        return np.stack([np.stack([d, -b_], -1), np.stack([-c, a], -1)], -2), a * d - b_ * c
+    r0, r1, r2 = B[..., 0, :], B[..., 1, :], B[..., 2, :]
+    adj = np.stack([np.cross(r1, r2), np.cross(r2, r0), np.cross(r0, r1)], -1)
+    return adj, np.einsum("...i,...i->...", r0, adj[..., 0])
 
 
 @dataclass

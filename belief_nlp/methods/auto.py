@@ -96,17 +96,15 @@ def _totals(stats: dict, answer: str) -> dict:
     return stats
 
 
-def _ccp_alone(problem: SmoothingProblem, state: dict, ccp_opts: tuple) -> Outcome:
-    """A re-plan after an answer CCP gave because IPOPT's was not taken: CCP
-    from the warm start on the state's conic step, IPOPT's state kept with
-    one skip less (module doc)."""
-    skip = int(state["stage_skip"])
-    second = _stage(problem, problem.max_iter, ccp.run, *ccp_opts, _start=problem.start,
-                    _prefix=int(state["offset"]))
-    stats = {"ccp": second.stats, "stages": ["ccp"], "ipopt_skipped": True}
-    return Outcome(second.status, f"IPOPT skipped (the last answer was CCP's; {skip - 1} more re-plans skip it); "
-                                  f"CCP: {second.message}", None, ccp_opts[0], _totals(stats, "ccp"), "auto:ccp",
-                   {**state, "stage_skip": skip - 1})
+def _ccp_answer(problem: SmoothingProblem, ccp_opts: tuple, start, prefix: int, stats: dict, why: str,
+                state: dict | None) -> Outcome:
+    """The "auto:ccp" outcome: CCP from ``start`` with the rest of the budget
+    (after executed steps on the state's longer conic step, frozen alike),
+    ``stats`` holding the stages before it; ``state`` is the next re-plan's."""
+    second = _stage(problem, problem.max_iter, ccp.run, *ccp_opts, _start=start, _prefix=prefix)
+    stats.update(ccp=second.stats, stages=[*stats.get("stages", []), "ccp"])
+    return Outcome(second.status, f"{why}: {second.message}", None, ccp_opts[0], _totals(stats, "ccp"), "auto:ccp",
+                   state)
 
 
 def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | None = None, ccp_solver: str = "CLARABEL",
@@ -118,8 +116,11 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
     ``polish``, ...: those of ``method="ipopt"``); ``resume`` goes to the
     IPOPT stage unless ``ipopt_options`` gives its own."""
     ccp_opts = (ccp_solver, ccp_solver_options or {})
-    if resume is not None and (ipopt_options or {}).get("resume") is None and resume.get("stage_skip", 0) > 0:
-        return _ccp_alone(problem, resume, ccp_opts)
+    skip = resume.get("stage_skip", 0) if resume is not None and (ipopt_options or {}).get("resume") is None else 0
+    if skip:                     # CCP alone from the warm start, IPOPT's state kept with one skip less (module doc)
+        return _ccp_answer(problem, ccp_opts, problem.start, int(resume["offset"]), {"ipopt_skipped": True},
+                           f"IPOPT skipped (the last answer was CCP's; {skip - 1} more re-plans skip it); CCP",
+                           {**resume, "stage_skip": skip - 1})
     polish_default = ccp_polish is None
     if ccp_polish is None:       # under a risk budget a CCP step is ~10x dearer (no active-set step): no polish
         ccp_polish = POLISH if problem.model.data.budget is None else 0
@@ -155,14 +156,12 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
     # CCP from the best exactly safe point so far
     best = min(problem.points.items(), key=lambda kv: problem.model.cost(kv[1])[0], default=(None, None))[1]
     start = best if best is not None and problem.model.cost(best)[0] <= problem.cost0 else problem.start
-    second = _stage(problem, problem.max_iter, ccp.run, *ccp_opts, _start=start, _prefix=prefix)
-    stats.update(ccp=second.stats, stages=["ipopt", "ccp"])
     # IPOPT's state, when it converged (above the warm start, or refused): a later
     # re-plan resumes it on this graph instead of building the next horizon's, after
     # ipopt_retry re-plans that run CCP alone (IPOPT's answer would not be taken again)
     state = None if first.resume is None else {**first.resume, "stage_skip": int(ipopt_retry)}
-    return Outcome(second.status, f"IPOPT: {first.status}; CCP from the best safe point: {second.message}",
-                   None, ccp_solver, _totals(stats, "ccp"), "auto:ccp", state)
+    return _ccp_answer(problem, ccp_opts, start, prefix, stats, f"IPOPT: {first.status}; CCP from the best safe point",
+                       state)
 
 
 def _count(v: Any) -> str | None:
