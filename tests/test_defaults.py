@@ -47,3 +47,26 @@ def test_paper_multi_plans_with_the_smoothers_noise_model_and_a_radius_for_its_a
     assert planner.options.noise == "per_step"
     assert planner.options.max_radius + planner.options.radius_per_alpha * 1.0 == pytest.approx(1.5)
     assert bn.IGRRTStar(sc, noise="per_metre").options.noise == "per_metre"    # a keyword still wins
+
+
+@pytest.mark.parametrize("name", ["tutorial", "quad", "cube3d"])
+def test_every_builtin_plans_with_per_step_noise_at_the_papers_alphas(name):
+    # with a fixed rewiring cap, per-step noise left no edge cheap enough at
+    # alpha = 1 on these three (one unsensed step costs ~alpha/2 log det(I + W P^-1)
+    # whatever its length): "no path ... (node budget reached)" for every seed
+    sc = bn.load_scenario(name)
+    for alpha in (0.1, 1.0):
+        planned = bn.plan(sc, n_nodes=500, seed=0, alpha=alpha, noise="per_step")
+        assert planned.success, (alpha, planned.message)
+        assert bn.verify(sc, planned.path).safe
+
+
+def test_the_rewiring_cap_grows_with_alpha_under_per_step_noise_unless_set():
+    from belief_nlp.planner.options import PER_STEP_RADIUS_PER_ALPHA, resolve_options
+
+    assert resolve_options({}, 1.0, noise="per_step").radius_per_alpha == PER_STEP_RADIUS_PER_ALPHA > 0
+    assert resolve_options({}, 1.0, noise="per_metre").radius_per_alpha == 0.0   # shrinks with the edge
+    assert resolve_options({"radius_per_alpha": 0.0}, 1.0, noise="per_step").radius_per_alpha == 0.0
+    assert resolve_options({}, 1.0, noise="per_step", radius_per_alpha=2.0).radius_per_alpha == 2.0
+    with pytest.raises(bn.errors.ValidationError, match="radius_per_alpha"):
+        resolve_options({}, 1.0, radius_per_alpha=-1.0)

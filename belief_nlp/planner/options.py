@@ -20,13 +20,20 @@ import numpy as np
 from .._limits import MAX_ALPHA, MAX_CHI2, MAX_PLANNER_NODES, MAX_VARIANCE
 from ..errors import ValidationError
 
-__all__ = ["PlannerOptions", "resolve_options", "METRICS", "NOISE_MODELS", "INFO_UNITS", "default_gamma"]
+__all__ = ["PlannerOptions", "resolve_options", "METRICS", "NOISE_MODELS", "INFO_UNITS", "default_gamma",
+           "PER_STEP_RADIUS_PER_ALPHA"]
 
 METRICS = ("entropy", "wasserstein", "hellinger")
 NOISE_MODELS = ("per_metre", "per_step")
 INFO_UNITS = ("nats", "bits")
 STEERING = ("geodesic", "linear")
 BACKENDS = ("auto", "numpy", "numba")
+#: radius_per_alpha under per-step noise unless given: one unsensed step costs
+#: alpha/2 log det(I + W P^-1) whatever its length (0.35 alpha at P = 2 W), so
+#: a fixed cap leaves no edge at alpha ~ 1 (tutorial, quad, cube3d: no path at
+#: alpha = 1 with 0; every built-in plans at 0.1, 0.5 and 1 with 1.2, the
+#: value paper-multi was tuned with)
+PER_STEP_RADIUS_PER_ALPHA = 1.2
 
 
 @dataclass(frozen=True)
@@ -73,6 +80,9 @@ class PlannerOptions:
         edge's information cost, alpha/2 log det((P + W) P^-1), does not shrink
         with its length, so a cap fit for alpha = 0.1 finds no path at 1
         (paper-multi: 0.3 + 1.2 alpha plans both of the paper's settings).
+        None (the default): :data:`PER_STEP_RADIUS_PER_ALPHA` with per-step
+        noise, 0 with per-metre noise (whose information cost shrinks with
+        the edge).
     gamma : radius constant: r_n = min(max_radius, gamma (log n / n)^(1/d)).
         None gives the authors' value 50 * gamma* (13.8 in 2-D).
     goal_bias : probability of drawing the sample's mean in the target
@@ -117,7 +127,7 @@ class PlannerOptions:
     eig_ratio: float = 10.0
     steering: str = "geodesic"
     max_radius: float = 0.5
-    radius_per_alpha: float = 0.0
+    radius_per_alpha: float | None = None
     gamma: float | None = None
     goal_bias: float = 0.05
     convergence_tol: float | None = None
@@ -235,6 +245,8 @@ def resolve_options(scenario_defaults: dict | None, scenario_alpha: float, scena
     o["eig_ratio"] = _real("eig_ratio", o["eig_ratio"], 1.0, 1e12)
     o["steering"] = _choice("steering", o["steering"], STEERING)
     o["max_radius"] = _real("max_radius", o["max_radius"], 0.0, low_open=True)
+    if o["radius_per_alpha"] is None:
+        o["radius_per_alpha"] = PER_STEP_RADIUS_PER_ALPHA if o["noise"] == "per_step" else 0.0
     o["radius_per_alpha"] = _real("radius_per_alpha", o["radius_per_alpha"], 0.0, 1e6)
     if o["gamma"] is not None:
         o["gamma"] = _real("gamma", o["gamma"], 0.0, low_open=True)
