@@ -13,6 +13,14 @@ from pathlib import Path
 from typing import Callable
 
 
+def cpu_seconds() -> float:
+    """CPU seconds of this process and of its waited-for children: method
+    "fatrop" solves in forked children (belief_nlp.methods.nlp_guarded),
+    which time.process_time() does not count."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
 def run_and_record(run_case: Callable[[dict], dict], cases: list[dict], summarise: Callable[[list], dict],
                    args, out: Path, workers: int) -> dict:
     """``run_case`` over ``cases`` in ``workers`` processes, ``summarise`` of the

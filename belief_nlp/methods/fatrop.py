@@ -26,7 +26,9 @@ from ..model.nlp_form import NLPProblem
 from ..model.ocp_form import OCPProblem, build_ocp
 from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.registry import Method, register
+from .nlp_backend import solver_stats
 from .nlp_engine import NLPBackend, nlp_options, run_nlp
+from .nlp_guarded import can_fork, guarded_call
 
 __all__ = ["run", "DEFAULT_FATROP_OPTIONS", "map_status", "FATROP", "available"]
 
@@ -39,6 +41,10 @@ DEFAULT_FATROP_OPTIONS: dict[str, Any] = {
     "bound_frac": 1e-4,
     "constr_viol_tol": 1e-8,
 }
+
+#: fatrop's print level that writes a line per iteration: the watchdog's
+#: heartbeat (:mod:`.nlp_guarded`); the user's ``print_level`` > 0 shows them
+_HEARTBEAT_LEVEL = 5
 
 #: CasADi's unified return statuses (fatrop's own flag is an integer)
 _LIMITED = {"SOLVER_RET_LIMITED"}
@@ -131,6 +137,27 @@ class FatropBackend(NLPBackend):
                 return f"fatrop option {key!r} must be a string, number or bool, got {type(value).__name__}"
         return _probe(tuple(sorted((k, v) for k, v in opts.items() if k not in (self.limit_key, "print_level"))))
 
+    def nlpsol(self, name: str, nlp: dict, options: dict) -> Any:
+        own = dict(options[self.plugin])
+        shown = own.get("print_level", 0) not in (0, False)
+        beats = can_fork()
+        if beats:           # its iteration lines are the watchdog's heartbeat
+            own["print_level"] = _HEARTBEAT_LEVEL
+        solver = ca.nlpsol(name, self.plugin, nlp, {**options, self.plugin: own})
+        solver.belief_nlp_shown = shown     # the user's print_level > 0: the lines are shown
+        solver.belief_nlp_beats = beats
+        return solver
+
+    def solve(self, solver: Any, args: dict, deadline: float | None) -> tuple[Any, dict, str]:
+        """In a forked child under the watchdog of :mod:`.nlp_guarded` (a
+        fatrop solve cannot be stopped otherwise, and one was seen to hang
+        inside an iteration); in the process where ``os.fork`` is missing."""
+        if not (can_fork() and getattr(solver, "belief_nlp_beats", False)):
+            return super().solve(solver, args, deadline)
+        sol, st, ended = guarded_call(solver, args, solver_stats, deadline,
+                                      echo=getattr(solver, "belief_nlp_shown", False))
+        return sol, st, ended or ""
+
     def return_status(self, stats: dict) -> str:
         if stats.get("success"):
             return "Success"
@@ -168,9 +195,9 @@ def _check_solver(name: str) -> str | None:
     return None
 
 
-#: fatrop's own iteration limit is the only bound on a solve (no callback, so
-#: no time limit inside it); one K = 20 case ran past 200 s between iterations
-#: 300 and 400 (docs/numerics.md, "fatrop"), hence the low default
+#: fatrop's own iteration limit bounds a solve that progresses; one that hangs
+#: inside an iteration (seen at K = 40) is ended by the watchdog of
+#: :mod:`.nlp_guarded`, as is one past the time limit (docs/numerics.md, "fatrop")
 METHOD = register(Method(
     name="fatrop", run=run, max_iter=300, default_solver="fatrop", check_solver=_check_solver,
     description="fatrop (Riccati-structured interior point) on the stage-ordered exact NLP through CasADi; "

@@ -12,7 +12,15 @@ import casadi as ca
 
 from ..model.nlp_form import NLPProblem
 
-__all__ = ["NLPBackend"]
+__all__ = ["NLPBackend", "solver_stats"]
+
+
+def solver_stats(solver: Any) -> dict:
+    """``solver.stats()``, or {} from a plug-in that has none after a failure."""
+    try:
+        return solver.stats()
+    except RuntimeError:
+        return {}
 
 
 class NLPBackend:
@@ -43,8 +51,8 @@ class NLPBackend:
     resume_options: dict = {}
     #: whether the plug-in calls CasADi's ``iteration_callback`` every
     #: iteration. One that does not (fatrop) gets its stage budget as its own
-    #: limit, no restarts, one history record per solve, and the time limit
-    #: is checked between solves only
+    #: limit, no restarts and one history record per solve; the time limit
+    #: inside a solve is then its :meth:`solve`'s to keep (fatrop: a watchdog)
     calls_back = True
 
     def options(self, solver_options: dict, tol: float, stage: str) -> dict:
@@ -90,6 +98,15 @@ class NLPBackend:
     def solving(self) -> contextlib.AbstractContextManager:
         """Context of every solve (fatrop: its unconditional stdout line silenced)."""
         return contextlib.nullcontext()
+
+    def solve(self, solver: Any, args: dict, deadline: float | None) -> tuple[Any, dict, str]:
+        """One call of ``solver`` with ``args``: (its solution, its stats,
+        "" or why the call was ended from outside: "time_limit" once
+        ``deadline`` passed, "stalled"). Raises RuntimeError as the solver
+        does. fatrop runs it under a watchdog (:mod:`.nlp_guarded`)."""
+        with self.solving():
+            sol = solver(**args)
+        return sol, solver_stats(solver), ""
 
     def return_status(self, stats: dict) -> str:
         """The solver's own return status from ``solver.stats()``."""

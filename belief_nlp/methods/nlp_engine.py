@@ -66,7 +66,7 @@ from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Option
 from ..smoother.result import STATUSES, IterationRecord
-from .nlp_backend import NLPBackend
+from .nlp_backend import NLPBackend, solver_stats
 from . import nlp_resume
 from ..model.nlp_prefix import longer
 from .nlp_build import _CACHE, _GRAPHS, _base_key, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
@@ -202,22 +202,19 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
                 # a row without bounds (a frozen step's, nlp_prefix) starts without a multiplier
                 bounded = np.isfinite(nlp.lbg) | np.isfinite(nlp.ubg)
                 warm = {"lam_x0": duals[0], "lam_g0": np.where(bounded, duals[1], 0.0)}
-            with backend.solving():
-                sol = solver(x0=x0, p=pv, lbx=lbx, ubx=ubx, lbg=nlp.lbg, ubg=nlp.ubg, **warm)
-            z_end = np.asarray(sol["x"]).ravel()
-            if backend.warm_duals:
+            sol, st, ended = backend.solve(
+                solver, dict(x0=x0, p=pv, lbx=lbx, ubx=ubx, lbg=nlp.lbg, ubg=nlp.ubg, **warm), problem.deadline)
+            recorder.stop_reason = ended or recorder.stop_reason     # ended from outside (fatrop's watchdog)
+            z_end = None if sol is None else np.asarray(sol["x"]).ravel()
+            if backend.warm_duals and sol is not None:
                 stage.duals = (np.asarray(sol["lam_x"]).ravel() / nlp.info.get("variable_scale", 1.0),
                                np.asarray(sol["lam_g"]).ravel())
                 stage.z = z_end
-            if not backend.calls_back:
-                recorder.solved(z_end, np.asarray(sol["g"]).ravel(), float(sol["f"]), solver.stats())
+            if not backend.calls_back and sol is not None:
+                recorder.solved(z_end, np.asarray(sol["g"]).ravel(), float(np.asarray(sol["f"]).flat[0]), st)
         except RuntimeError as exc:   # CasADi raises on some solver exceptions
             log.warning("%s raised: %s", backend.name, exc)
-            z_end = None
-        try:
-            st = solver.stats()
-        except RuntimeError:          # some plug-ins have no stats after a failure
-            st = {}
+            z_end, st = None, solver_stats(solver)
         raw = _STOPS[recorder.stop_reason] if recorder.stop_reason else backend.return_status(st)
         why = backend.refused(raw, opts, recorder.log_path, log_at)
         if why:
@@ -227,7 +224,8 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         stage.attempts.append({"formulation": formulation, "return_status": raw, "iter_count": n_it,
                                "restoration": backend.restoration(st, recorder.log_path, log_at),
                                "wall_time": time.perf_counter() - t_solve,
-                               "cpu_time": time.process_time() - c_solve, **backend.attempt_stats(st)})
+                               "cpu_time": time.process_time() - c_solve + st.get("child_cpu_time", 0.0),
+                               **backend.attempt_stats(st)})
         stage.used += n_it
         n_attempts += 1
         status = backend.map_status(raw)

@@ -1,0 +1,110 @@
+"""The watchdog around solves that cannot call back (belief_nlp.methods.nlp_guarded):
+fatrop runs in a forked child that is ended on the run's deadline or when it
+stops printing iteration lines (one K = 40 solve hung inside an iteration)."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import pytest
+
+import belief_nlp as bn
+from belief_nlp.methods import fatrop
+from belief_nlp.methods.nlp_guarded import can_fork, guarded_call
+
+pytestmark = pytest.mark.skipif(not can_fork(), reason="no os.fork on this platform: solves run in the process")
+
+
+class _Fake:
+    """A stand-in solver for the child: prints iteration lines, then returns, hangs or raises."""
+
+    def __init__(self, lines: int, then: str):
+        self.lines, self.then = lines, then
+
+    def __call__(self, **args):
+        for i in range(self.lines):
+            os.write(1, f"{i:5d}  1.0e+00  2.0e-01\n".encode())
+        if self.then == "hang":
+            while True:             # silent, like fatrop inside its KKT reduction
+                time.sleep(0.05)
+        if self.then == "raise":
+            raise RuntimeError("the plug-in failed: NaN in the KKT system")
+        return {"x": np.asarray(args["x0"]) * 2.0, "f": np.array([[3.0]])}
+
+    def stats(self):
+        return {"iter_count": self.lines, "success": self.then == "return"}
+
+
+def _stats(solver):
+    return solver.stats()
+
+
+def test_an_answer_comes_back_with_the_childs_stats_and_cpu():
+    sol, st, ended = guarded_call(_Fake(3, "return"), {"x0": np.arange(4.0)}, _stats, deadline=None)
+    assert ended is None and st["iter_count"] == 3 and st["success"]
+    np.testing.assert_array_equal(sol["x"], 2.0 * np.arange(4.0))
+    assert st["child_cpu_time"] >= 0.0
+
+
+def test_a_silent_child_is_ended_as_stalled_with_its_last_iteration():
+    t = time.perf_counter()
+    sol, st, ended = guarded_call(_Fake(7, "hang"), {"x0": np.zeros(2)}, _stats, deadline=None, stall=0.5)
+    assert ended == "stalled" and sol is None
+    assert st["iter_count"] == 6                         # the last line printed: "    6 ..."
+    assert time.perf_counter() - t < 60                  # it returned (no hang), whatever the CPU
+
+
+def test_the_deadline_ends_a_child_that_is_still_printing():
+    class Chatty(_Fake):
+        def __call__(self, **args):
+            i = 0
+            while True:
+                os.write(1, f"{i:5d}  1.0\n".encode())
+                i += 1
+                time.sleep(0.01)
+
+    sol, st, ended = guarded_call(Chatty(0, ""), {}, _stats, deadline=time.perf_counter() + 0.3, stall=60)
+    assert ended == "time_limit" and sol is None and st["iter_count"] > 0
+
+
+def test_the_solvers_runtime_error_is_raised_here():
+    with pytest.raises(RuntimeError, match="NaN in the KKT system"):
+        guarded_call(_Fake(1, "raise"), {}, _stats, deadline=None)
+
+
+@pytest.mark.skipif(not fatrop.available(), reason="this CasADi build has no fatrop plug-in")
+def test_fatrop_in_the_child_gives_the_in_process_answer_bit_for_bit(small_start, monkeypatch):
+    sc, ws = small_start
+    forked = bn.smooth(sc, ws, method="fatrop", alpha=1.0)
+    assert forked.stats["attempts"][0]["cpu_time"] > 0          # the child's CPU counted
+    monkeypatch.setattr(fatrop, "can_fork", lambda: False)
+    inside = bn.smooth(sc, ws, method="fatrop", alpha=1.0)
+    assert forked.status == inside.status and forked.nit == inside.nit
+    assert forked.cost == inside.cost
+    np.testing.assert_array_equal(forked.path.x, inside.path.x)
+
+
+@pytest.mark.skipif(not fatrop.available(), reason="this CasADi build has no fatrop plug-in")
+def test_a_fatrop_solve_ended_from_outside_is_an_honest_time_limit(small_start, monkeypatch):
+    """The real fatrop child, its deadline already passed when it starts:
+    ended at once, the attempt and the status say so, the answer is the
+    start (safe, never above it)."""
+    real = fatrop.FatropBackend.solve
+    monkeypatch.setattr(fatrop.FatropBackend, "solve",
+                        lambda self, solver, args, deadline: real(self, solver, args, time.perf_counter()))
+    sc, ws = small_start
+    res = bn.smooth(sc, ws, method="fatrop", alpha=1.0)
+    assert res.stats["attempts"][0]["return_status"] == "Maximum_WallTime_Exceeded"
+    assert res.status == "time_limit" and not res.success
+    assert res.safe and res.cost <= res.initial_cost and bn.verify(sc, res.path).safe
+
+
+@pytest.mark.skipif(not fatrop.available(), reason="this CasADi build has no fatrop plug-in")
+def test_fatrops_lines_are_shown_only_when_asked(small_start, capsys):
+    sc, ws = small_start
+    bn.smooth(sc, ws, method="fatrop", alpha=1.0, max_iter=4)
+    assert "objective" not in capsys.readouterr().out
+    bn.smooth(sc, ws, method="fatrop", alpha=1.0, max_iter=4, solver_options={"print_level": 5})
+    assert "objective" in capsys.readouterr().out
