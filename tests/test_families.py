@@ -60,6 +60,16 @@ def test_maps_are_plannable():
     assert ok >= 3
 
 
+def test_3d_maps_plan_at_both_of_the_papers_alphas():
+    # the target is 1e-3 of the cube: with the 2-D goal bias (0.05) map 0 had
+    # no path at alpha = 1 with 500 nodes (the family now biases 0.2)
+    sc = generate("boxes3d", 0)
+    for alpha in (0.1, 1.0):
+        planned = bn.plan(sc, n_nodes=500, seed=0, alpha=alpha)
+        assert planned.success, (alpha, planned.message)
+        assert bn.verify(sc, planned.path).safe
+
+
 def test_spec_strings():
     assert parse_family_spec("random-polygons:3") == [("random-polygons", i) for i in range(3)]
     assert parse_family_spec("corridor@7") == [("corridor", 7)]
