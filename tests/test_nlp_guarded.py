@@ -98,6 +98,7 @@ def test_a_fatrop_solve_ended_from_outside_is_an_honest_time_limit(small_start, 
     res = bn.smooth(sc, ws, method="fatrop", alpha=1.0)
     assert res.stats["attempts"][0]["return_status"] == "Maximum_WallTime_Exceeded"
     assert res.status == "time_limit" and not res.success
+    assert res.nit == res.stats["iter_count"]       # what the child did, though no point came back
     assert res.safe and res.cost <= res.initial_cost and bn.verify(sc, res.path).safe
 
 

@@ -227,6 +227,8 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
                                "cpu_time": time.process_time() - c_solve + st.get("child_cpu_time", 0.0),
                                **backend.attempt_stats(st)})
         stage.used += n_it
+        if z_end is None and not backend.calls_back:      # no record says how far it got
+            problem.unrecorded_to = max(problem.unrecorded_to, offset + stage.used)
         n_attempts += 1
         status = backend.map_status(raw)
         found = _safe_points(problem, nlp, recorder, z_end, status == "converged")

@@ -190,6 +190,9 @@ class SmoothingProblem:
             IterationRecord(0, self.cost0, ctrl0, info0, "warm_start", min_margin=chk.margin, kalman_gap=0.0)]
         self.points: dict[int, Layout] = {}      # accepted iterates kept (iteration -> point)
         self.stop_requested = False
+        #: iterations a solver performed past its last record: a solve ended
+        #: from outside (fatrop's watchdog) returns no point to record
+        self.unrecorded_to = 0
 
     # ------------------------------------------------------------ budget
     @property
@@ -328,9 +331,10 @@ class SmoothingProblem:
     # ----------------------------------------------------------- history
     @property
     def iterations(self) -> int:
-        """Iterations recorded so far: the last record's number (a solver
-        that reports only the end of each solve leaves gaps in the numbering)."""
-        return self.history[-1].iteration if self.history else 0
+        """Iterations performed so far: the last record's number (a solver
+        that reports only the end of each solve leaves gaps in the numbering),
+        or more when a solve ended without a point (:attr:`unrecorded_to`)."""
+        return max(self.history[-1].iteration if self.history else 0, self.unrecorded_to)
 
     def record(self, rec: IterationRecord, point: Layout | None = None) -> bool:
         """Append one iteration; keep ``point`` when the record is accepted
