@@ -69,6 +69,27 @@ def test_the_deadline_ends_a_child_that_is_still_printing():
     assert ended == "time_limit" and sol is None and st["iter_count"] > 0
 
 
+def test_an_exception_in_the_parent_ends_the_child():
+    """Ctrl-C while a child hangs: the child is killed and reaped (without
+    the kill, the wait for it would never return)."""
+    import signal
+
+    class Interrupt(Exception):
+        pass
+
+    def raise_(*_):
+        raise Interrupt
+
+    old = signal.signal(signal.SIGALRM, raise_)
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.3)
+        with pytest.raises(Interrupt):
+            guarded_call(_Fake(1, "hang"), {}, _stats, deadline=None, stall=600)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
 def test_the_solvers_runtime_error_is_raised_here():
     with pytest.raises(RuntimeError, match="NaN in the KKT system"):
         guarded_call(_Fake(1, "raise"), {}, _stats, deadline=None)

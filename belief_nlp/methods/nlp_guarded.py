@@ -10,8 +10,9 @@ solve runs in a forked copy of the process, which inherits the built
 solver (nothing is rebuilt or pickled but the answer). The child's stdout
 is a pipe, both the C-level one and Python's ``sys.stdout`` (CasADi hands
 its plug-ins' output to the latter); the plug-in prints a line per
-iteration, and each line is a heartbeat. The parent ends the child when the run's deadline passes or
-no line came for :data:`STALL_SECONDS`, and reports which.
+iteration, and each line is a heartbeat. The parent ends the child when
+the run's deadline passes or no line came for :data:`STALL_SECONDS`, and
+reports which; an exception in the parent (Ctrl-C) ends it too.
 
 Where ``os.fork`` does not exist (Windows) the call runs in the process, as
 before, and only the plug-in's own iteration limit bounds it.
@@ -103,11 +104,11 @@ def _last_iteration(log: bytes) -> int:
 def guarded_call(solver: Any, args: dict, stats: Callable[[Any], dict], deadline: float | None,
                  echo: bool = False, stall: float = STALL_SECONDS) -> tuple[Any, dict, str | None]:
     """``solver(**args)`` in a forked child: (solution dict or None, the
-    solver's stats with the child's CPU seconds as "child_cpu_time", None
-    or why the child was ended: "time_limit" when
-    ``deadline`` (a ``time.perf_counter`` value) passed, "stalled" after
-    ``stall`` s without output). A RuntimeError of the solver is raised
-    here with its message; ``echo`` copies the child's output to stdout."""
+    solver's stats with the child's CPU seconds as "child_cpu_time", None or
+    why the child was ended: "time_limit" when ``deadline`` (a
+    ``time.perf_counter`` value) passed, "stalled" after ``stall`` s without
+    output). A RuntimeError of the solver is raised here with its message;
+    ``echo`` copies the child's output to stdout."""
     r_log, w_log = os.pipe()
     r_res, w_res = os.pipe()
     for stream in (sys.stdout, sys.stderr):
@@ -135,6 +136,7 @@ def guarded_call(solver: Any, args: dict, stats: Callable[[Any], dict], deadline
     sel = selectors.DefaultSelector()
     sel.register(r_log, selectors.EVENT_READ, "log")
     sel.register(r_res, selectors.EVENT_READ, "result")
+    answered = False
     try:
         while len(sel.get_map()):
             now = time.perf_counter()
@@ -143,7 +145,6 @@ def guarded_call(solver: Any, args: dict, stats: Callable[[Any], dict], deadline
             elif now - last >= stall:
                 stop = "stalled"
             if stop:
-                os.kill(pid, signal.SIGKILL)
                 break
             wait = stall - (now - last)
             if deadline is not None:
@@ -159,7 +160,10 @@ def guarded_call(solver: Any, args: dict, stats: Callable[[Any], dict], deadline
                     tail = (tail + data)[-4096:]
                     if echo:
                         sys.stdout.write(data.decode(errors="replace"))
+        answered = stop is None
     finally:
+        if not answered:        # stopped, or an exception here (KeyboardInterrupt): the child must not live on
+            os.kill(pid, signal.SIGKILL)
         sel.close()
         os.close(r_log)
         os.close(r_res)
