@@ -327,6 +327,16 @@ def test_demo_in_process_single_alpha(tmp_path, hand_path_file, capsys):
         run(["demo", "--help"], capsys)[1].split())
 
 
+def test_plans_log_the_cap_of_their_noise_model(tmp_path, capsys):
+    """quad keeps the authors' per-metre noise (no growth of the cap with
+    alpha); 'plan' uses per-step noise, under which the cap grows by default:
+    the log states the cap the planner used, and the plan is found."""
+    for noise, note in (("per_step", "radius cap 0.5 + 1.2 alpha = 1.7\n"), ("per_metre", "radius cap 0.5\n")):
+        code, _, err = run(["plan", "quad", "--alpha", 1.0, "--nodes", 300, "--noise", noise,
+                            "--out", tmp_path / noise], capsys)
+        assert code == EXIT_OK and note in err, err
+
+
 @pytest.mark.parametrize("argv, max_iter", [
     ([], None), (["--quick"], None), (["--converged"], None), (["--max-iter", "7"], 7),
     (["--method", "ipopt", "--quick"], None),

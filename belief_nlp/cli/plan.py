@@ -63,7 +63,7 @@ def _plan(run: _Run, sc, *, label: str = "", stem: str = "plan", figures: bool =
 
     a = run.args
     log.info("%splanning on %s with IG-RRT*: %d nodes, seed %d, alpha %g, %s noise, %s", label, sc.name or "scenario",
-             a.nodes, a.seed, sc.alpha, a.noise, _radius_note(sc, a.max_radius))
+             a.nodes, a.seed, sc.alpha, a.noise, _radius_note(sc, a.max_radius, a.noise))
     note = cold_compile_note(a.backend, sc.dim, a.metric)
     if note:                                    # the planner logs it too, but below the CLI's default level
         log.info("%s%s", label, note)
@@ -83,14 +83,16 @@ def _plan(run: _Run, sc, *, label: str = "", stem: str = "plan", figures: bool =
     return res
 
 
-def _radius_note(sc, given: float | None) -> str:
+def _radius_note(sc, given: float | None, noise: str) -> str:
     """The rewiring-radius cap for the log: the value used and, when
     ``--max-radius`` differs from the scenario's ``[planner]`` value (the
     demo's own default does), the scenario's, so that two runs whose stated
-    settings agree plan the same."""
+    settings agree plan the same. ``noise``: the run's noise model (the
+    cap's growth with alpha defaults by it)."""
     from ..planner.options import resolve_options
 
-    own = resolve_options(sc.planner, sc.alpha, sc.chi2)   # the scenario's values, validated as plan() does
+    # the scenario's values with the run's noise, validated as plan() does
+    own = resolve_options(sc.planner, sc.alpha, sc.chi2, noise=noise)
 
     def cap(r: float) -> str:
         return f"{r:g}" + (f" + {own.radius_per_alpha:g} alpha" if own.radius_per_alpha else "")
