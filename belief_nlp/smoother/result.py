@@ -22,7 +22,7 @@ STATUSES = {
     "converged": "relative cost decrease fell below tol",
     "max_iter": "iteration limit reached (not converged; the best feasible iterate is returned)",
     "time_limit": "wall-time limit reached (best feasible iterate returned)",
-    "solver_failed": "a subproblem failed twice (best feasible iterate returned)",
+    "solver_failed": "the solver failed, or a CCP subproblem twice (best feasible iterate returned)",
     "non_monotone": "a step would have increased the cost beyond tolerance (rejected; best iterate returned)",
     "infeasible_iterate": "a solver answer failed the exact safety check (rejected; best iterate returned)",
     "ipopt_failed": "the NLP solver did not reach an acceptable point (best feasible point returned)",
