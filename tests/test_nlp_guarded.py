@@ -5,7 +5,10 @@ stops printing iteration lines (one K = 40 solve hung inside an iteration)."""
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -130,3 +133,39 @@ def test_fatrops_lines_are_shown_only_when_asked(small_start, capsys):
     assert "objective" not in capsys.readouterr().out
     bn.smooth(sc, ws, method="fatrop", alpha=1.0, max_iter=4, solver_options={"print_level": 5})
     assert "objective" in capsys.readouterr().out
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_the_child_dies_with_its_parent(tmp_path):
+    """A study's case timeout kills the worker: a hung solve must not live on."""
+    pidfile = tmp_path / "child.pid"
+    script = (
+        "import os, time\n"
+        "from belief_nlp.methods.nlp_guarded import guarded_call\n"
+        "class Hang:\n"
+        "    def __call__(self, **a):\n"
+        f"        open({str(pidfile)!r}, 'w').write(str(os.getpid()))\n"
+        "        while True:\n"
+        "            time.sleep(0.05)\n"
+        "guarded_call(Hang(), {}, lambda s: {}, deadline=None, stall=600)\n")
+    parent = subprocess.Popen([sys.executable, "-c", script])
+    try:
+        t = time.perf_counter()
+        while not (pidfile.exists() and pidfile.read_text()) and time.perf_counter() - t < 120:
+            time.sleep(0.05)
+        child = int(pidfile.read_text())
+    finally:
+        parent.kill()
+        parent.wait()
+
+    def alive() -> bool:
+        try:
+            state = Path(f"/proc/{child}/status").read_text()
+        except OSError:
+            return False
+        return "\nState:\tZ" not in state              # a zombie is dead, waiting to be reaped
+
+    t = time.perf_counter()
+    while alive() and time.perf_counter() - t < 30:
+        time.sleep(0.05)
+    assert not alive()

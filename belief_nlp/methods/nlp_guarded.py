@@ -64,12 +64,22 @@ def _line_buffered(libc: Any) -> None:
         return
 
 
-def _child(solver: Any, args: dict, stats: Callable[[Any], dict], w_log: int, w_res: int) -> None:
+def _die_with(parent: int, libc: Any) -> None:
+    """Linux: the child is killed when its parent dies (a study's case
+    timeout kills the worker), or a hung solve would outlive it on a core."""
+    if libc is not None and sys.platform.startswith("linux"):
+        libc.prctl(1, signal.SIGKILL)                 # PR_SET_PDEATHSIG
+    if os.getppid() != parent:                        # the parent died before that
+        os._exit(1)
+
+
+def _child(solver: Any, args: dict, stats: Callable[[Any], dict], w_log: int, w_res: int, parent: int) -> None:
     """The child's side: solve with fd 1 on the heartbeat pipe, send
     ("ok", solution, stats) or ("raised", message, stats), exit at once."""
     code = 0
     libc = _libc()
     try:
+        _die_with(parent, libc)
         os.dup2(w_log, 1)
         if libc is not None:
             _line_buffered(libc)
@@ -119,6 +129,7 @@ def guarded_call(solver: Any, args: dict, stats: Callable[[Any], dict], deadline
     libc = _libc()
     if libc is not None:
         libc.fflush(None)         # or the child would write this process's pending C output again
+    parent = os.getpid()
     with warnings.catch_warnings():
         # Python >= 3.12 warns on fork in a threaded process; the child runs the solver only
         warnings.simplefilter("ignore", DeprecationWarning)
@@ -126,7 +137,7 @@ def guarded_call(solver: Any, args: dict, stats: Callable[[Any], dict], deadline
     if pid == 0:                                                    # pragma: no cover (the child)
         os.close(r_log)
         os.close(r_res)
-        _child(solver, args, stats, w_log, w_res)
+        _child(solver, args, stats, w_log, w_res, parent)
     os.close(w_log)
     os.close(w_res)
     chunks: list[bytes] = []
