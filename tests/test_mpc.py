@@ -174,3 +174,15 @@ def test_opti_closed_loop_reaches_the_target_safely(multi):
     assert multi.target.contains(path.x[-1])
 
 
+
+
+def test_the_reference_keeps_every_vertex_of_its_plan():
+    """cube3d at alpha = 1: the plan has 11 edges, one more than the
+    scenario's K. By default the reference (and the closed loop) takes as
+    many steps as it needs; a fixed count below it is a clear SolverError
+    (it was warm_start's 'K: ... would drop vertices', a K nobody gave)."""
+    sc = bn.load_scenario("cube3d").with_options(alpha=1.0)
+    ref = export.reference_path(sc, None)
+    assert ref.K == 11 > sc.K and bn.verify(sc, ref).safe
+    with pytest.raises(bn.errors.SolverError, match="11 edges, more than steps = 10"):
+        export.reference_path(sc, 10)

@@ -22,7 +22,8 @@ def add_parser(sub) -> None:
     mp.add_argument("--tool", choices=("opti", "dompc", "rockit"), default="opti", help="the MPC tool")
     mp.add_argument("--horizon", type=_positive_int, default=10, help="prediction horizon (stages)")
     mp.add_argument("--steps", type=_positive_int, default=None,
-                    help="closed-loop steps (default: the scenario's horizon K, else 20)")
+                    help="closed-loop steps (default: the scenario's horizon K, else 20; more when the reference "
+                         "plan has more edges)")
     mp.add_argument("--seed", type=int, default=0, help="seed of the IG-RRT* reference")
     _output_args(mp)
     mp.set_defaults(func=_cmd_mpc)

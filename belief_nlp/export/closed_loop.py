@@ -80,7 +80,9 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
                 seed: int = 0, progress: Callable[[int, float], None] | None = None,
                 prox: float = PROX, levels: np.ndarray | None = None) -> BeliefPath:
     """Run the belief MPC of ``tool`` for ``steps`` steps (default: the
-    scenario's horizon K, else 20) with prediction ``horizon``.
+    reference's transitions; :func:`.reference_path` makes that the
+    scenario's horizon K, else 20, or more when its plan has more edges)
+    with prediction ``horizon``.
 
     ``reference``: a safe path of ``steps`` transitions to track and to warm
     start from (default :func:`.reference_path`, an IG-RRT* plan made
@@ -92,12 +94,13 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
     if tool not in TOOLS:
         raise ValidationError("tool", f"must be one of {sorted(TOOLS)}, got {tool!r}")
     sc = _scenario(scenario)
-    steps = int(sc.K or 20) if steps is None else steps
     for name, v in (("steps", steps), ("horizon", horizon)):
-        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+        if (v is not None or name == "horizon") and (
+                not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1):
             raise ValidationError(name, f"must be a positive integer, got {v!r}")
     kit = BeliefMPC.build(sc, alpha=alpha, track=track, prox=prox)
     ref = reference_path(sc, steps, seed=seed) if reference is None else reference
+    steps = ref.K if steps is None else steps
     if ref.K != steps:
         raise ValidationError("reference", f"must have {steps} transitions, got {ref.K}")
     lv = None

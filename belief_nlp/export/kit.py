@@ -50,9 +50,12 @@ from .certificates import certificate_warm_start
 __all__ = ["BeliefMPC", "reference_path"]
 
 
-def reference_path(scenario: Scenario | str, steps: int, seed: int = 0, n_nodes: int = 300) -> BeliefPath:
+def reference_path(scenario: Scenario | str, steps: int | None, seed: int = 0, n_nodes: int = 300) -> BeliefPath:
     """A safe reference of ``steps`` transitions: an IG-RRT* plan (per-step
-    noise) made feasible by :func:`belief_nlp.warm_start` (sensing added)."""
+    noise) made feasible by :func:`belief_nlp.warm_start` (sensing added).
+    ``steps`` None: the scenario's K (else 20), or the plan's edge count
+    when that is larger (every vertex is kept). Raises SolverError when the
+    plan fails or has more edges than ``steps``."""
     from ..errors import SolverError
     from ..planner import plan
     from ..smoother.warmstart import warm_start
@@ -61,6 +64,13 @@ def reference_path(scenario: Scenario | str, steps: int, seed: int = 0, n_nodes:
     res = plan(sc, n_nodes=n_nodes, seed=seed, noise="per_step", max_radius=1.5)
     if not res.success:
         raise SolverError(f"no reference path: planning failed ({res.message})")
+    edges = res.path.K
+    if steps is None:
+        steps = max(int(sc.K or 20), edges)
+    elif edges > steps:
+        # a plan's vertices are where it turns around obstacles: none may be dropped
+        raise SolverError(f"the reference plan (seed {seed}) has {edges} edges, more than steps = {steps}: give "
+                          f"steps >= {edges}, or None for as many as the plan needs")
     return warm_start(sc, res.path, K=steps).path
 
 
