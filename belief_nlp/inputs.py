@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ValidationError
-from .path import BeliefPath
+from .path import BeliefPath, result_path
 from .scenario import Scenario, load_scenario
 
 __all__ = ["as_scenario", "as_path", "load_path_file"]
@@ -47,8 +47,8 @@ def as_path(path: Any):
         return path
     if isinstance(path, (str, os.PathLike)):
         return load_path_file(path, "path")[0]
-    inner = getattr(path, "path", None)       # PlanResult, SmoothResult
-    if isinstance(inner, BeliefPath):
+    inner = result_path(path)                 # PlanResult, SmoothResult
+    if inner is not None:
         return inner
     raise ValidationError("path", f"must be a BeliefPath, a WarmStart or a result with a .path, "
                                   f"got {type(path).__name__}")

@@ -453,3 +453,18 @@ class BeliefPath:
 
     def __repr__(self) -> str:
         return f"BeliefPath(K={self.K}, d={self.dim}, noise={self.noise!r}, length={self.length:.4g} m)"
+
+
+def result_path(obj: Any) -> BeliefPath | None:
+    """The ``.path`` of a result (PlanResult, SmoothResult, ...); None when
+    ``obj`` has no ``.path``. A result whose ``.path`` is None (a failed
+    plan) raises ValidationError of ``path`` with the result's message."""
+    if isinstance(obj, (str, bytes, os.PathLike)):
+        return None
+    inner = getattr(obj, "path", None)
+    if isinstance(inner, BeliefPath):
+        return inner
+    if inner is None and hasattr(obj, "path"):
+        why = getattr(obj, "message", "")
+        raise ValidationError("path", f"the {type(obj).__name__} holds no path" + (f" ({why})" if why else ""))
+    return None

@@ -34,7 +34,7 @@ import numpy as np
 
 from ._limits import MAX_VERIFY_SAMPLES
 from .errors import ValidationError
-from .path import BeliefPath
+from .path import BeliefPath, result_path
 from ._verify_distances import _psd_part, _sqdist, _support
 from ._verify_kalman import kalman_checks
 from .polytope import Polytope
@@ -195,12 +195,9 @@ def _as_path(path: object) -> BeliefPath:
     """A BeliefPath, or the ``.path`` of a result (PlanResult, SmoothResult, ...)."""
     if isinstance(path, BeliefPath):
         return path
-    inner = getattr(path, "path", None) if not isinstance(path, (str, bytes, os.PathLike)) else None
-    if isinstance(inner, BeliefPath):
+    inner = result_path(path)
+    if inner is not None:
         return inner
-    if inner is None and hasattr(path, "path") and not isinstance(path, (str, bytes, os.PathLike)):
-        why = getattr(path, "message", "")
-        raise ValidationError("path", f"the {type(path).__name__} holds no path" + (f" ({why})" if why else ""))
     raise ValidationError("path", f"must be a BeliefPath or a result with a .path, got {type(path).__name__}")
 
 

@@ -70,3 +70,17 @@ def test_the_rewiring_cap_grows_with_alpha_under_per_step_noise_unless_set():
     assert resolve_options({}, 1.0, noise="per_step", radius_per_alpha=2.0).radius_per_alpha == 2.0
     with pytest.raises(bn.errors.ValidationError, match="radius_per_alpha"):
         resolve_options({}, 1.0, radius_per_alpha=-1.0)
+
+
+def test_plan_results_are_taken_as_their_path_and_a_failed_one_says_why():
+    sc = bn.load_scenario("tutorial")
+    planned = bn.plan(sc, n_nodes=300, seed=0)
+    assert planned.success
+    ws = bn.warm_start(sc, planned)                       # was "path: must be a BeliefPath, got PlanResult"
+    assert ws.path == bn.warm_start(sc, planned.path).path
+    failed = bn.plan(sc, n_nodes=2, seed=0)                # two nodes cannot reach the target
+    assert not failed.success
+    for call in (lambda: bn.warm_start(sc, failed), lambda: bn.smooth(sc, failed), lambda: bn.verify(sc, failed)):
+        with pytest.raises(bn.errors.ValidationError, match="the PlanResult holds no path") as exc:
+            call()
+        assert failed.message in str(exc.value)

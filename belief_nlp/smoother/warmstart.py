@@ -38,6 +38,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -48,7 +49,7 @@ from ..geometry import PolytopeSet, containment_margin, transition_minimiser
 from ..model import terms
 from ..model.evaluate import _hcat
 from .policy import DEFAULT_POLICY
-from ..path import BeliefPath
+from ..path import BeliefPath, result_path
 from ..scenario import Scenario
 from ..verify import VerificationReport, verify
 
@@ -200,7 +201,7 @@ def _on_segment(p, a, b) -> bool:
     return -1e-12 <= t <= 1 + 1e-12 and np.allclose(a + t * ab, p, atol=1e-12)
 
 
-def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
+def warm_start(scenario: Scenario, path: Any, K: int | None = None,
                sensing: str = "minimal", chi2: float | None = None, *, verify_start: bool = True) -> WarmStart:
     """A feasible initial point of the smoother built from ``path``.
 
@@ -214,8 +215,9 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
     ----------
     scenario : Scenario
         The planning problem.
-    path : BeliefPath
-        A path from the planner (either noise model), a file, or a user's
+    path : BeliefPath or a result with a ``.path``
+        A path from the planner (either noise model; a PlanResult is taken
+        as its path, a failed one refused with its message), or a user's
         polyline with covariances (:meth:`BeliefPath.from_covariances`); it
         must start at the scenario's start mean.
     K : int, optional
@@ -252,6 +254,7 @@ def warm_start(scenario: Scenario, path: BeliefPath, K: int | None = None,
     ValidationError
         For bad arguments (a K below the number of edges, an unknown ``sensing``).
     """
+    path = result_path(path) or path            # PlanResult, SmoothResult: their path
     try:
         return _warm_start(scenario, path, K, sensing, None, chi2, verify_start)
     except InfeasibleStartError:
