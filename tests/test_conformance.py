@@ -62,6 +62,23 @@ def test_a_method_that_reports_success_above_the_start_is_corrected():
     assert res.cost == pytest.approx(res.initial_cost)
 
 
+def test_a_converged_answer_within_tol_above_an_optimal_start_keeps_converged():
+    """A start that is already optimal (a re-plan from the planned belief):
+    a converged answer no lower, within tol (relative) of it, returns the
+    start as converged; beyond tol it is still "above_start"."""
+    def nudge(problem):
+        z = problem.start.copy()
+        z.S[1:] *= 1.001                                 # safe (more sensing), a little dearer
+        return bn.Outcome("converged", "converged", point=problem.model.tighten(z))
+
+    sc, path = bn.smoother.conformance.small_problem()
+    for tol, status in ((0.5, "converged"), (1e-9, "above_start")):
+        res = bn.smooth(sc, path, method=nudge, tol=tol)
+        assert res.status == status and res.success == (status == "converged")
+        assert res.cost == res.initial_cost                    # the start, never the dearer answer
+        assert ("within tol = 0.5" in res.message) == (status == "converged")
+
+
 def test_a_method_answer_that_is_unsafe_is_never_returned():
     def reckless(problem):
         z = problem.start.copy()

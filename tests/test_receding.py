@@ -397,3 +397,17 @@ def test_a_receding_replan_in_three_dimensions():
     auto = bn.replan(now, bn.smooth(sc, plan.path, K=10, alpha=1.0), advance=1, alpha=1.0, ccp_polish=10)
     assert auto.stats["ipopt"]["resumed"] == "yes" and auto.stats["ccp"]["frozen"] == 1
     assert bn.verify(now, auto.path).safe and auto.cost <= auto.initial_cost
+
+
+@pytest.mark.skipif("sqp" not in bn.available_methods(), reason="the sqp method needs unopy")
+def test_a_replan_from_the_planned_belief_is_converged_at_its_start():
+    """No disturbance: the re-plan's warm start (the last answer's tail) is
+    already optimal, and IPOPT converges 1e-6 above it. That was
+    "above_start", a failure, in every such loop step; the start is optimal
+    to tol, so it is returned as converged."""
+    sc = bn.load_scenario("tutorial").with_options(alpha=1.0)
+    first = bn.smooth(sc, bn.plan(sc, n_nodes=400, seed=0, noise="per_step"), method="sqp")
+    planned = sc.with_options(x0=first.path.x[1], P0=first.path.P[1])
+    r = bn.replan(planned, first, advance=1, method="ipopt")
+    assert r.status == "converged" and r.success and "the warm start is returned" in r.message
+    assert r.cost == r.initial_cost and bn.verify(planned, r.path).safe

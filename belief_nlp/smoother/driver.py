@@ -380,8 +380,14 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
             answer, origin, report, path = z, where, rep, cand
             break
         log.warning("%s failed independent verification; trying the next candidate", where)
-    if status == "converged" and origin != intended:
-        status = "above_start" if candidates and candidates[0][0] > problem.cost0 else "infeasible_iterate"
+    best = candidates[0][0] if candidates else np.inf
+    if status == "converged" and origin == "the warm start" and problem.cost0 < best <= problem.cost0 * (1 + problem.tol):
+        # a start that is already optimal (a re-plan from the planned belief): the method
+        # converged no lower, within tol (relative) of it, so the start is optimal to tol
+        message = (f"{message}; the warm start is returned: the answer was {best / problem.cost0 - 1:.1e} above it, "
+                   f"within tol = {problem.tol:g}")
+    elif status == "converged" and origin != intended:
+        status = "above_start" if best > problem.cost0 else "infeasible_iterate"
         message = f"{message}; {origin} is returned ({STATUSES[status]})"
     if path is None:
         path = model.to_path(answer, meta=meta)

@@ -26,7 +26,7 @@ STATUSES = {
     "non_monotone": "a step would have increased the cost beyond tolerance (rejected; best iterate returned)",
     "infeasible_iterate": "a solver answer failed the exact safety check (rejected; best iterate returned)",
     "ipopt_failed": "the NLP solver did not reach an acceptable point (best feasible point returned)",
-    "above_start": "the method's answer cost more than the warm start (the warm start is returned)",
+    "above_start": "the method's answer cost more than the warm start, beyond tol (the warm start is returned)",
     "stopped": "stopped by the callback (best feasible iterate returned)",
 }
 
