@@ -65,3 +65,20 @@ def test_the_ipopt_stage_takes_ipopts_method_options(small):
         bn.smooth(sc, path, ipopt_options={"polish": -1})
     with pytest.raises(bn.ValidationError, match="ipopt_options"):
         bn.smooth(sc, path, ipopt_options=[("floor", 5e-3)])
+
+
+def test_a_polish_step_clarabel_cannot_answer_ends_the_polish():
+    """alpha = 1e-6 (information nearly free of cost): Clarabel's answers to
+    the polish's first step are refused (non-monotone by 1e-3). The rest of
+    the cascade (CVXPY's compile, SCS at high accuracy) took 110 s for that
+    one step; the polish now ends there and IPOPT's answer stands."""
+    sc = bn.load_scenario("paper-multi")
+    planned = bn.plan(sc, n_nodes=300, seed=0, noise="per_step", alpha=0.1)
+    res = bn.smooth(sc, planned, method="auto", alpha=1e-6)
+    ipo = bn.smooth(sc, planned, method="ipopt", alpha=1e-6)
+    assert res.method == "auto:ipopt+ccp" and res.status == "converged" and res.safe
+    assert res.cost <= ipo.cost * (1 + 1e-12)
+    ccp = res.stats["ccp"]
+    assert ccp["compile"] == "not needed"                      # CVXPY's step never built
+    tried = {(a["solver"], a["settings"]) for s in ccp["steps"] for a in s.get("attempts", [])}
+    assert tried and tried <= {("CLARABEL", "active set"), ("CLARABEL", "full step")}

@@ -124,7 +124,7 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         cache_dir: str | Path | bool | None = None, constraints: Callable | None = None,
         hook: Callable | None = None, accelerate: bool = True, active_set: bool = True,
         resume: dict | None = None, _fail_at: int | None = None, _start: Layout | None = None,
-        _prefix: int = 0) -> Outcome:
+        _prefix: int = 0, _head_only: bool = False) -> Outcome:
     """CCP from the problem's start (see the module doc and :data:`METHOD`).
 
     ``_start`` (for composite methods): continue from this exactly safe point
@@ -134,7 +134,11 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     ``_prefix`` steps longer, when it is in memory, with those steps frozen
     (:mod:`belief_nlp.model.conic_prefix`), and no CVXPY step follows it;
     ``resume`` (an earlier answer's state, ``bn.replan(..., advance=k)``)
-    gives that offset. The outcome's state says the offset of the step used."""
+    gives that offset. The outcome's state says the offset of the step used.
+    ``_head_only`` (auto's polish): a step is answered by the chosen
+    solver's first entries only (on its own data: the active-set and full
+    steps), never by the cascade's slower rest (CVXPY's compile, SCS at high
+    accuracy): a step they cannot answer ends the run, whose start stands."""
     model, D = problem.model, problem.model.data
     _prefix = _prefix or (int(resume["offset"]) if resume is not None else 0)
     solver = (problem.solver or "CLARABEL").upper()
@@ -184,6 +188,8 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
     budget = problem.model.data.budget is not None
     if conic is None:
         cascade = solver_cascade(solver, problem.solver_options, budget=budget)
+        if _head_only:
+            cascade = cascade[:1]
     else:
         # the active-set step, then the full step on the same Clarabel data (every
         # pair kept: the problem of the CVXPY step's first entry, without CVXPY's
@@ -191,7 +197,8 @@ def run(problem: SmoothingProblem, *, monotone_tol: float = 1e-7, rho: float | N
         # only when neither answer is taken
         lib = {**SOLVER_DEFAULTS["CLARABEL"], **problem.solver_options}
         cascade = LazyCascade([("CLARABEL", "active set", lib), ("CLARABEL", "full step", lib)],
-                              (lambda: []) if frozen is not None   # the CVXPY step is of the shorter horizon
+                              # the CVXPY step is of the shorter horizon when frozen
+                              (lambda: []) if frozen is not None or _head_only
                               else lambda: solver_cascade(solver, problem.solver_options, budget=budget))
     prox: dict = {}            # the proximal step: compiled on first use; not with a hook's own constraints
     held: dict = {"keep": None}
