@@ -82,3 +82,18 @@ def test_a_polish_step_clarabel_cannot_answer_ends_the_polish():
     assert ccp["compile"] == "not needed"                      # CVXPY's step never built
     tried = {(a["solver"], a["settings"]) for s in ccp["steps"] for a in s.get("attempts", [])}
     assert tried and tried <= {("CLARABEL", "active set"), ("CLARABEL", "full step")}
+
+
+def test_alpha_zero_has_no_nlp_minimiser_auto_answers_with_ccp(small_start):
+    """alpha = 0: sensing costs nothing, the NLP has no minimiser (IPOPT
+    stopped on NaN after 180 iterations). The NLP methods say so; auto goes
+    to CCP at once, which answers as method "ccp" does."""
+    sc, ws = small_start
+    for method in [m for m in ("ipopt", "sqp", "fatrop") if m in bn.available_methods()]:
+        with pytest.raises(bn.ValidationError) as err:
+            bn.smooth(sc, ws, method=method, alpha=0.0)
+        assert err.value.field == "alpha" and "no minimiser" in str(err.value)
+    res = bn.smooth(sc, ws, method="auto", alpha=0.0)
+    ccp = bn.smooth(sc, ws, method="ccp", alpha=0.0)
+    assert res.method == "auto:ccp" and res.stats["ipopt_skipped"] and res.safe
+    assert res.status == ccp.status and res.cost == pytest.approx(ccp.cost, rel=1e-9)

@@ -121,6 +121,9 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
         return _ccp_answer(problem, ccp_opts, problem.start, int(resume["offset"]), {"ipopt_skipped": True},
                            f"IPOPT skipped (the last answer was CCP's; {skip - 1} more re-plans skip it); CCP",
                            {**resume, "stage_skip": skip - 1})
+    if problem.model.data.alpha == 0:    # sensing costs nothing: the NLP has no minimiser (nlp_engine.run_nlp)
+        return _ccp_answer(problem, ccp_opts, problem.start, int((resume or {}).get("offset", 0)),
+                           {"ipopt_skipped": True}, "IPOPT skipped (alpha = 0: the NLP has no minimiser); CCP", None)
     polish_default = ccp_polish is None
     if ccp_polish is None:       # under a risk budget a CCP step is ~10x dearer (no active-set step): no polish
         ccp_polish = POLISH if problem.model.data.budget is None else 0

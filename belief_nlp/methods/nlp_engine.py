@@ -273,6 +273,11 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     the first stage's start when it fits (same graph, plug-in and floor) --
     and the usual first stage from the warm start when that solve does not
     end converged and exactly safe."""
+    if problem.model.data.alpha == 0:
+        # measured: IPOPT stopped on NaN (Invalid_Number_Detected) after 180 iterations, twice
+        raise ValidationError("alpha", f"must be > 0 for {backend.name}: with alpha = 0 sensing costs nothing and "
+                                       "the NLP has no minimiser (its sensing grows without bound); methods "
+                                       "'auto' and 'ccp' answer alpha = 0 with CCP")
     if problem.out_of_time():                      # the warm start used the budget up
         return Outcome("time_limit", f"{STATUSES['time_limit']} (before {backend.name} started)", None,
                        backend.name)

@@ -129,7 +129,9 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
         exponential cones, default CLARABEL; auto and ipopt: IPOPT, auto's
         CCP stage takes ``ccp_solver=``); None uses the method's default.
     alpha : float, optional
-        Information weight; None uses the scenario's.
+        Information weight; None uses the scenario's. At 0 sensing costs
+        nothing and the NLP has no minimiser: the NLP methods refuse it,
+        ``auto`` answers with CCP.
     time_limit : float, optional
         Wall-time budget in seconds, warm start and model build included.
     solver_options : dict, optional
