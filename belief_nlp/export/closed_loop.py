@@ -95,8 +95,9 @@ def closed_loop(scenario: Scenario | str, tool: str = "opti", horizon: int = 10,
         raise ValidationError("tool", f"must be one of {sorted(TOOLS)}, got {tool!r}")
     sc = _scenario(scenario)
     for name, v in (("steps", steps), ("horizon", horizon)):
-        if (v is not None or name == "horizon") and (
-                not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1):
+        if v is None and name == "steps":           # the reference's own count
+            continue
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
             raise ValidationError(name, f"must be a positive integer, got {v!r}")
     kit = BeliefMPC.build(sc, alpha=alpha, track=track, prox=prox)
     ref = reference_path(sc, steps, seed=seed) if reference is None else reference

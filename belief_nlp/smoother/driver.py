@@ -383,7 +383,8 @@ def _finish(problem: SmoothingProblem, outcome: Outcome, m: Method, t_setup: flo
             break
         log.warning("%s failed independent verification; trying the next candidate", where)
     best = candidates[0][0] if candidates else np.inf
-    if status == "converged" and origin == "the warm start" and problem.cost0 < best <= problem.cost0 * (1 + problem.tol):
+    within_tol = problem.cost0 < best <= problem.cost0 * (1 + problem.tol)
+    if status == "converged" and origin == "the warm start" and within_tol:
         # a start that is already optimal (a re-plan from the planned belief): the method
         # converged no lower, within tol (relative) of it, so the start is optimal to tol
         message = (f"{message}; the warm start is returned: the answer was {best / problem.cost0 - 1:.1e} above it, "

@@ -254,7 +254,8 @@ def warm_start(scenario: Scenario, path: Any, K: int | None = None,
     ValidationError
         For bad arguments (a K below the number of edges, an unknown ``sensing``).
     """
-    path = result_path(path) or path            # PlanResult, SmoothResult: their path
+    inner = result_path(path)                   # PlanResult, SmoothResult: their path
+    path = path if inner is None else inner
     try:
         return _warm_start(scenario, path, K, sensing, None, chi2, verify_start)
     except InfeasibleStartError:
