@@ -111,6 +111,38 @@ def _last_iteration(log: bytes) -> int:
     return 0
 
 
+def _watch(r_log: int, r_res: int, deadline: float | None, stall: float,
+           echo: bool) -> tuple[bytes, bytes, str | None]:
+    """Read the child's two pipes until both close: (the pickled answer, the
+    log's last 4 KiB, None), or stop early with the reason ("time_limit",
+    "stalled"). Each log chunk is a heartbeat; ``echo`` copies it to stdout."""
+    chunks: list[bytes] = []
+    tail = b""
+    last = time.perf_counter()
+    with selectors.DefaultSelector() as sel:
+        sel.register(r_log, selectors.EVENT_READ, "log")
+        sel.register(r_res, selectors.EVENT_READ, "result")
+        while sel.get_map():
+            now = time.perf_counter()
+            if deadline is not None and now >= deadline:
+                return b"", tail, "time_limit"
+            if now - last >= stall:
+                return b"", tail, "stalled"
+            wait = stall - (now - last) if deadline is None else min(stall - (now - last), deadline - now)
+            for key, _ in sel.select(timeout=max(wait, 0.0)):
+                data = os.read(key.fd, 1 << 16)
+                if not data:
+                    sel.unregister(key.fd)
+                elif key.data == "result":
+                    chunks.append(data)
+                else:
+                    last = time.perf_counter()
+                    tail = (tail + data)[-4096:]
+                    if echo:
+                        sys.stdout.write(data.decode(errors="replace"))
+    return b"".join(chunks), tail, None
+
+
 def guarded_call(solver: Any, args: dict, stats: Callable[[Any], dict], deadline: float | None,
                  echo: bool = False, stall: float = STALL_SECONDS) -> tuple[Any, dict, str | None]:
     """``solver(**args)`` in a forked child: (solution dict or None, the
@@ -140,42 +172,13 @@ def guarded_call(solver: Any, args: dict, stats: Callable[[Any], dict], deadline
         _child(solver, args, stats, w_log, w_res, parent)
     os.close(w_log)
     os.close(w_res)
-    chunks: list[bytes] = []
-    tail = b""
-    stop: str | None = None
-    last = time.perf_counter()
-    sel = selectors.DefaultSelector()
-    sel.register(r_log, selectors.EVENT_READ, "log")
-    sel.register(r_res, selectors.EVENT_READ, "result")
     answered = False
     try:
-        while len(sel.get_map()):
-            now = time.perf_counter()
-            if deadline is not None and now >= deadline:
-                stop = "time_limit"
-            elif now - last >= stall:
-                stop = "stalled"
-            if stop:
-                break
-            wait = stall - (now - last)
-            if deadline is not None:
-                wait = min(wait, deadline - now)
-            for key, _ in sel.select(timeout=max(wait, 0.0)):
-                data = os.read(key.fd, 1 << 16)
-                if not data:
-                    sel.unregister(key.fd)
-                elif key.data == "result":
-                    chunks.append(data)
-                else:
-                    last = time.perf_counter()
-                    tail = (tail + data)[-4096:]
-                    if echo:
-                        sys.stdout.write(data.decode(errors="replace"))
+        result, tail, stop = _watch(r_log, r_res, deadline, stall, echo)
         answered = stop is None
     finally:
         if not answered:        # stopped, or an exception here (KeyboardInterrupt): the child must not live on
             os.kill(pid, signal.SIGKILL)
-        sel.close()
         os.close(r_log)
         os.close(r_res)
         usage = os.wait4(pid, 0)[2]
@@ -184,7 +187,7 @@ def guarded_call(solver: Any, args: dict, stats: Callable[[Any], dict], deadline
     if stop is not None:
         return None, {"iter_count": _last_iteration(tail), "watchdog": f"{stop}: ended from outside", **cpu}, stop
     try:
-        kind, payload, st = pickle.loads(b"".join(chunks))
+        kind, payload, st = pickle.loads(result)
     except Exception as exc:   # the child died before it could answer
         raise RuntimeError(f"the solver's process ended without an answer ({type(exc).__name__})") from None
     if kind == "raised":

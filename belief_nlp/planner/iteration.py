@@ -135,9 +135,7 @@ class IterationMixin:
 
     def _radius(self, n_live: int) -> float:
         n = n_live + 1
-        o = self.options
-        cap = o.max_radius + o.radius_per_alpha * o.alpha
-        return min(cap, self.gamma * (math.log(n) / n) ** (1.0 / self.dim))
+        return min(self.options.radius_cap, self.gamma * (math.log(n) / n) ** (1.0 / self.dim))
 
     def _priors(self, live: LiveView, w: np.ndarray | None, rows=None) -> np.ndarray:
         """(3, k) entries of the priors P_i + w_i W of the live nodes (``rows``

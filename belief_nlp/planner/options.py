@@ -139,6 +139,11 @@ class PlannerOptions:
     # "numpy" until seed-sensitive tests elsewhere allow "auto" (docs/planner.md, fourth round)
     backend: str = "auto"
 
+    @property
+    def radius_cap(self) -> float:
+        """The rewiring radius's cap: max_radius + radius_per_alpha * alpha."""
+        return self.max_radius + self.radius_per_alpha * self.alpha
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dict (tuples become lists)."""
         out = asdict(self)

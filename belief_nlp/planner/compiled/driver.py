@@ -96,7 +96,7 @@ class CompiledAttempt:
         prm[[A.P_W11, A.P_W12, A.P_W22]] = W[0, 0], W[0, 1], W[1, 1]
         prm[A.P_WEIGHT] = planner.metric.weight
         prm[A.P_GAMMA] = planner.gamma
-        prm[A.P_RCAP] = o.max_radius + o.radius_per_alpha * o.alpha
+        prm[A.P_RCAP] = o.radius_cap
         prm[A.P_LOGDET_MAX] = planner._logdet_max
         prm[A.P_EIG_FLOOR] = _EIG_FLOOR_FACTOR * o.eig_range[0]
         self.prm = prm
