@@ -311,11 +311,12 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
         The collision level of every transition-hazard pair (a path smoothed
         under a risk budget has its own per pair, ``SmoothResult.risk.levels``);
         None: the scenario's chi2, or -- for a result smoothed under a risk
-        budget -- its ``risk.levels`` and ``risk.budget``. The target is
-        always judged at the scenario's own chi2.
+        budget -- its ``risk.levels``. The target is always judged at the
+        scenario's own chi2.
     budget : float, optional
         An end-to-end collision budget: the path is safe only when its
-        certified bound of kind ``risk_kind`` is at most ``budget``.
+        certified bound of kind ``risk_kind`` is at most ``budget``; None
+        for a result smoothed under a budget: its ``risk.budget``.
     risk_kind : {"steps", "continuous"}, optional
         Which bound ``budget`` limits: the step-time bound
         (``report.risk.step_time``, the default) or the continuous-time one
@@ -338,8 +339,11 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
     if certificates is None:
         certificates = getattr(path, "certificates", None)
     allocation = getattr(path, "risk", None) if not isinstance(path, BeliefPath) else None
-    if levels is None and budget is None and allocation is not None and hasattr(allocation, "levels"):
-        levels, budget = allocation.levels, allocation.budget      # a result smoothed under a risk budget
+    if allocation is not None and hasattr(allocation, "levels"):
+        # a result smoothed under a risk budget: judged at its own levels, under its own
+        # budget unless another is given (verify(sc, res, budget=0.05) judged it at chi2)
+        levels = allocation.levels if levels is None else levels
+        budget = allocation.budget if budget is None else budget
         risk_kind = risk_kind or getattr(allocation, "kind", None)
     path = _as_path(path)
     n_samples = _sample_count("n_samples", n_samples)

@@ -137,6 +137,36 @@ def test_nlp_levels_round_trip(setting):
     assert nlp.info["n_budget"] == 1 and nlp.ubg[-1] == 1.0
 
 
+
+def test_polish_start_frees_only_the_levels_its_switch_off_breaks(setting):
+    """The exact-Cholesky polish switches off the sensing held at the floor.
+    Under a budget it holds every level where the first stage put it, except
+    those of the pairs whose certified clearance (the model's, recomputed
+    here) then falls below their level: only those may re-balance."""
+    from belief_nlp.model.nlp_form import build_nlp
+
+    sc, path = setting
+    model = BeliefModel(sc, K, 1.0, risk=RiskBudget(BUDGET))
+    ws = warm_start(sc, path, K=K, chi2=sc.chi2)
+    z = model.tighten(model.from_path(ws.path, ws.lam))
+    tau_lo, tau_hi = model.data.level_bounds
+    z.tau = np.clip(model.clearances(z) / (1 + 1e-3), tau_lo, tau_hi)      # every pair's rows hold
+    nlp = build_nlp(model, "cholesky")
+    zv = nlp.pack(z)
+    z0, lbz, ubz = nlp.switch_off(zv, nlp.lbz, nlp.ubz, 1e9)             # a floor above all sensing
+    assert np.all(z0[nlp.info["sensing_offset"]:][:K * 3] == 0.0)
+    after = model.clearances(nlp.unpack(z0))
+    n = K * len(sc.hazards)
+    lo, hi = lbz[-n:].reshape(K, -1), ubz[-n:].reshape(K, -1)       # levels ordered (k, j) as the rows
+    free = lo < hi
+    broken = after < z.tau * (1 - 1e-6)
+    sure = broken | (after > z.tau * (1 + 1e-5))                     # away from the rows' 1e-6 margin
+    assert 0 < broken.sum() < n
+    np.testing.assert_array_equal(free[sure], broken[sure])
+    assert np.all(lo[free] == tau_lo) and np.all(hi[free] == tau_hi)
+    assert np.allclose(lo[~free], z.tau[~free]) and np.allclose(z0[-n:], z.tau.ravel())
+
+
 # ------------------------------------------------------------------ smoothing
 @pytest.mark.parametrize("method", ["ipopt", "ccp"])
 def test_budget_is_met_by_the_independent_bound(setting, results, method):
@@ -215,6 +245,9 @@ def test_verify_judges_a_budgeted_result_at_its_own_levels(setting, results):
     r = results["ipopt"]
     assert np.min(r.risk.levels) < sc.chi2                  # some pair spends more than the paper's level allows
     assert bn.verify(sc, r).safe                            # the result carries its levels and budget
+    assert bn.verify(sc, r, budget=BUDGET).safe             # ... also when the budget is given again
+    tight = bn.verify(sc, r, budget=0.5 * r.risk.bound)     # judged at its levels, over a smaller budget
+    assert not tight.safe and all("budget" in p for p in tight.problems)
     assert not bn.verify(sc, r.path, certificates=r.certificates).safe     # the bare path at the fixed level is not
 
 

@@ -170,6 +170,8 @@ class NLPProblem:
         are 0 and stay off."""
         tri, d, K, off = self.info["tri"], self.info["d"], self.info["K"], self.info["sensing_offset"]
         z0, lbz, ubz = np.array(z, float), np.array(lbz, float), np.array(ubz, float)
+        budget = bool(self.info.get("n_budget"))
+        before = self.margin_values(z0)[0] if budget else None
         # the "cholesky" NLP holds L's entries: column norms without factoring S_k again
         L = np.zeros((K, d, d))
         L[:, [i for i, _ in tri], [j for _, j in tri]] = z0[off:off + K * len(tri)].reshape(K, len(tri))
@@ -177,11 +179,17 @@ class NLPProblem:
         col_of = np.array([j for _, j in tri])
         idx = off + np.flatnonzero(off_cols[:, col_of].ravel())           # entries of switched-off columns
         z0[idx] = lbz[idx] = ubz[idx] = 0.0
-        if self.info.get("n_budget"):
-            # the levels stay where the first stage allocated them: the polish only
-            # removes the floor's sensing (with them free it took 50+ iterations)
+        if budget:
+            # the levels stay where the first stage allocated them, except those of
+            # the pairs whose rows (two per pair, ordered as the levels) the switch-off
+            # pushed below zero: only they re-balance. All fixed, the polish ended in
+            # restoration at alpha = 1; all free, it crept at alpha = 0.1 (docs/numerics.md,
+            # "Risk allocation in the NLP polish")
             n = K * self.info["J"]
-            lbz[-n:] = ubz[-n:] = z0[-n:]
+            after = self.margin_values(z0)[0]
+            broken = ((after < 0) & (after < before)).reshape(n, 2).any(axis=1)
+            held = z0.size - n + np.flatnonzero(~broken)
+            lbz[held] = ubz[held] = z0[held]
         return z0, lbz, ubz
 
 
