@@ -80,10 +80,13 @@ def _summary(records: list[dict]) -> dict:
             "cases": len(rows),
             "converged and verified": sum(r["status"] == "converged" and r["verified"] for r in rows),
             "median iterations": float(np.median([r["iterations"] for r in rows])) if rows else None,
-            "median polish iterations": float(np.median([r["polish_iterations"] for r in pol])) if pol else None,
-            "polishes converged": f"{sum(r['polish_status'] == 'Solve_Succeeded' for r in pol)}/{len(pol)}",
             "median CPU s": float(np.median([r["cpu_s"] for r in rows])) if rows else None,
+            "total CPU s": float(sum(r["cpu_s"] for r in rows)),
         }
+        if pol:     # IPOPT's stages (method "ipopt"; auto's statistics hold no attempts)
+            table[f"alpha {alpha:g}"] |= {
+                "median polish iterations": float(np.median([r["polish_iterations"] for r in pol])),
+                "polishes converged": f"{sum(r['polish_status'] == 'Solve_Succeeded' for r in pol)}/{len(pol)}"}
     table["errors (no warm start within the budget)"] = len(records) - len(ok)
     return table
 

@@ -167,6 +167,38 @@ def test_polish_start_frees_only_the_levels_its_switch_off_breaks(setting):
     assert np.allclose(lo[~free], z.tau[~free]) and np.allclose(z0[-n:], z.tau.ravel())
 
 
+
+@pytest.mark.parametrize("budget", [0.05, BUDGET])
+def test_optimal_budget_starts_at_the_lowest_level_that_fits(setting, budget):
+    """The warm start under an optimal budget is the ladder's lowest level
+    whose certified bound (recomputed by path_risk) is within 97 % of the
+    budget: the least sensing that fits. A linear scan of every rung is the
+    independent answer to the bisection."""
+    from belief_nlp.smoother.budget_start import START_SHARE, budget_warm_start
+
+    sc, path = setting
+    rb = RiskBudget(budget)
+    top = rb.warm_level(K * len(sc.hazards))
+    ladder = sorted({top * 0.9**i for i in range(13)} | ({sc.chi2} if sc.chi2 < top else set()), reverse=True)
+    fits = []
+    for level in ladder:
+        try:
+            w = warm_start(sc, path, K=K, chi2=level, verify_start=False)
+        except InfeasibleStartError:
+            continue
+        if path_risk(sc, w.path, w.lam).step_time <= START_SHARE * budget:
+            fits.append((level, w))
+    assert 1 < len(fits) < len(ladder)            # some rungs too high to clear, or over the budget
+    lowest, expected = fits[-1]
+    got = budget_warm_start(sc, path, K, "minimal", rb)
+    np.testing.assert_allclose(got.path.S, expected.path.S, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(got.lam, expected.lam, rtol=1e-12, atol=0)
+    assert path_risk(sc, got.path, got.lam).step_time <= START_SHARE * budget
+    # the highest fitting level (the start before session 18) senses more
+    assert np.sum(np.linalg.slogdet(fits[0][1].path.S + np.eye(2))[1]) > \
+        np.sum(np.linalg.slogdet(got.path.S + np.eye(2))[1])
+
+
 # ------------------------------------------------------------------ smoothing
 @pytest.mark.parametrize("method", ["ipopt", "ccp"])
 def test_budget_is_met_by_the_independent_bound(setting, results, method):

@@ -35,12 +35,12 @@ from ..errors import InfeasibleStartError, ValidationError
 from ..inputs import as_path, as_scenario
 from ..model import BeliefModel, Layout
 from ..path import BeliefPath
-from ..risk import path_risk, surrogate_clearance
 from ..scenario import Scenario
 from .context import Outcome, SmoothingProblem
 from .registry import DEFAULT_METHOD, Method, resolve_method
 from .result import STATUSES, SmoothResult
-from .warmstart import WarmStart, sharpened, warm_start
+from .budget_start import budget_warm_start
+from .warmstart import WarmStart, warm_start
 
 __all__ = ["smooth"]
 
@@ -264,78 +264,18 @@ def _budget(scenario: Scenario, risk: Any, allocation: Any, kind: Any) -> RiskBu
     return RiskBudget(risk, allocation, kind)
 
 
-def _continuous_warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str, budget: RiskBudget,
-                           n_pairs: int) -> WarmStart:
-    """A warm start for a continuous-time budget. The surrogate asks each level
-    under Sigma_k = P_prior_{k-1} + W, which only sensing before step k - 1
-    shrinks: the step-time warm start at the budget's level, then with every
-    posterior scaled by 2^-i (more sensing everywhere) until the surrogate
-    fits -- every pair clear of the uniform level (uniform allocation), or the
-    surrogate's sum within 97 % of the budget (optimal)."""
-    if budget.allocation == "uniform":
-        base = budget.uniform_level(n_pairs)
-        warm = warm_start(scenario, path, K=K, sensing=sensing, chi2=base)
-    else:       # the highest level of the step-time ladder whose warm start exists (pairs near a hazard then
-        top = budget.warm_level(n_pairs)        # spend more of the budget, the sharpening below pays for it)
-        for base in [top * 0.9**i for i in range(13)] + [scenario.chi2]:
-            try:
-                warm = warm_start(scenario, path, K=K, sensing=sensing, chi2=base)
-                break
-            except InfeasibleStartError:
-                if base == scenario.chi2:
-                    raise
-    best = float("inf")
-    for i in range(25):
-        cand = warm if i == 0 else sharpened(scenario, warm, 0.5**i, base)
-        clear = surrogate_clearance(scenario, cand.path)
-        best = float(np.sum(budget.factor * tail(clear)))
-        if budget.allocation == "uniform" and np.all(clear >= base * (1 + 1e-3)):
-            return cand
-        if budget.allocation != "uniform" and best <= 0.97 * budget.budget:
-            return cand
-    raise InfeasibleStartError(f"no warm start meets the continuous-time risk budget {budget.budget:g} (with all "
-                               f"the sensing, the surrogate spends {best:.3g}: the means pass too close to a "
-                               f"hazard for the noise W; give a larger budget or a path further from the hazards)")
-
-
 def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str,
                 fallback: bool, budget: RiskBudget | None = None) -> tuple[WarmStart, dict]:
     """The warm start at K, or -- when K is infeasible and fallback allowed -- at
     one step per path edge; with what happened. Under a risk budget the
-    collisions are cleared at the budget's level for that K."""
-    J = len(scenario.hazards)
+    collisions are cleared at a level that fits it (:mod:`.budget_start`)."""
 
     def build(k: int | None) -> WarmStart:
         if budget is None:
             # not verified here: the start is proven by the exact check and the
             # path returned is verified (_finish), the warm start included
             return warm_start(scenario, path, K=k, sensing=sensing, verify_start=False)
-        n_pairs = (path.K if k is None else k) * J
-        if budget.kind == "continuous":
-            return _continuous_warm_start(scenario, path, k, sensing, budget, n_pairs)
-        if budget.allocation == "uniform":
-            levels = [budget.uniform_level(n_pairs)]
-        else:   # the uniform level at 90 % of the budget, then lower ones while the certified sum fits
-            top = budget.warm_level(n_pairs)
-            levels = sorted({top * 0.9**i for i in range(13)} | ({scenario.chi2} if scenario.chi2 < top else set()),
-                            reverse=True)
-        err, best = None, float("inf")
-        for chi2 in levels:
-            try:
-                warm = warm_start(scenario, path, K=k, sensing=sensing, chi2=chi2)
-            except InfeasibleStartError as exc:
-                err = err or exc
-                continue
-            bound = path_risk(scenario, warm.path, warm.lam).step_time
-            if budget.allocation == "uniform" or bound <= 0.97 * budget.budget:
-                return warm
-            best = bound
-            break                # a lower level senses less and spends more: later rungs would not fit
-        why = (f"the best warm start's certified bound is {best:.3g}" if np.isfinite(best)
-               else f"every pair at level {levels[-1]:.4g}: {err}")
-        raise InfeasibleStartError(f"no warm start meets the risk budget {budget.budget:g} ({why}; plan with "
-                                   f"risk={budget.budget:g} or give a larger budget)",
-                                   getattr(err, "transition", None), getattr(err, "obstacle", None))
+        return budget_warm_start(scenario, path, k, sensing, budget)
 
     try:
         warm = build(K)

@@ -1,0 +1,124 @@
+"""Warm starts inside a risk budget (:class:`belief_nlp.allocation.RiskBudget`).
+
+A path is made feasible by :func:`.warmstart.warm_start` at one collision
+level for every pair. Under a budget that level is chosen so that the
+certified bound fits:
+
+* uniform allocation: the budget's uniform level, g^-1(Delta / (K J));
+* optimal allocation, step-time bound: the lowest level of a ladder (the
+  uniform level at 90 % of Delta, then x0.9 per rung, and the scenario's
+  chi2) whose certified step-time bound is within 97 % of Delta. Lower levels
+  sense less, so this is the start nearest the optimum; the highest level
+  that fits sensed up to 6x as much, and IPOPT's first steps from such
+  starts failed (docs/numerics.md, "Risk allocation in the NLP polish");
+* continuous-time bound: the step-time start, then every posterior sharpened
+  until the per-pair surrogate fits.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from ..allocation import RiskBudget, tail
+from ..errors import InfeasibleStartError
+from ..path import BeliefPath
+from ..risk import path_risk, surrogate_clearance
+from ..scenario import Scenario
+from .warmstart import WarmStart, sharpened, warm_start
+
+__all__ = ["budget_warm_start"]
+
+#: the share of the budget a warm start may spend (the rest keeps it strictly inside)
+START_SHARE = 0.97
+
+
+def budget_warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str,
+                      budget: RiskBudget) -> WarmStart:
+    """The warm start of ``path`` at K inside ``budget`` (module doc); raises
+    InfeasibleStartError when none fits, saying what the best one spends."""
+    n_pairs = (path.K if K is None else K) * len(scenario.hazards)
+    if budget.kind == "continuous":
+        return _continuous(scenario, path, K, sensing, budget, n_pairs)
+    uniform = budget.allocation == "uniform"
+    if uniform:
+        levels = [budget.uniform_level(n_pairs)]
+    else:
+        top = budget.warm_level(n_pairs)
+        levels = sorted({top * 0.9**i for i in range(13)} | ({scenario.chi2} if scenario.chi2 < top else set()),
+                        reverse=True)
+    errors: list[InfeasibleStartError] = []
+
+    def rung(chi2: float) -> tuple[str, WarmStart | None, float]:
+        try:
+            # unverified, as every start of smooth(): the path returned is verified at its own levels
+            warm = warm_start(scenario, path, K=K, sensing=sensing, chi2=chi2, verify_start=False)
+        except InfeasibleStartError as exc:
+            errors.append(exc)
+            return "infeasible", None, float("inf")
+        if uniform:            # the uniform level spends the budget by construction
+            return "fits", warm, float("nan")
+        bound = path_risk(scenario, warm.path, warm.lam).step_time
+        return ("fits" if bound <= START_SHARE * budget.budget else "over"), warm, bound
+
+    last, first_over = _last_not_over(levels, rung)
+    if last is not None and last[0] == "fits":
+        return last[1]
+    why = (f"the best warm start's certified bound is {first_over[2]:.3g}" if first_over is not None
+           else f"every pair at level {levels[-1]:.4g}: {errors[0] if errors else 'no warm start'}")
+    err = errors[0] if errors else None
+    raise InfeasibleStartError(f"no warm start meets the risk budget {budget.budget:g} ({why}; plan with "
+                               f"risk={budget.budget:g} or give a larger budget)",
+                               getattr(err, "transition", None), getattr(err, "obstacle", None))
+
+
+def _last_not_over(levels: list[float], rung: Callable[[float], tuple]) -> tuple[tuple | None, tuple | None]:
+    """Bisection over ``levels`` (descending) for the boundary of a ladder that
+    reads infeasible (too high to clear), then fits, then over the budget
+    (too little sensing): (the last rung not over, the first rung over), each
+    ``rung``'s (state, warm start, bound) or None. Four or five warm starts
+    instead of up to 14."""
+    lo, hi, seen = -1, len(levels), {}
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        seen[mid] = rung(levels[mid])
+        if seen[mid][0] == "over":
+            hi = mid
+        else:
+            lo = mid
+    return seen.get(lo), seen.get(hi)
+
+
+def _continuous(scenario: Scenario, path: BeliefPath, K: int | None, sensing: str, budget: RiskBudget,
+                n_pairs: int) -> WarmStart:
+    """A warm start for a continuous-time budget. The surrogate asks each level
+    under Sigma_k = P_prior_{k-1} + W, which only sensing before step k - 1
+    shrinks: the step-time warm start at the budget's level, then with every
+    posterior scaled by 2^-i (more sensing everywhere) until the surrogate
+    fits -- every pair clear of the uniform level (uniform allocation), or the
+    surrogate's sum within 97 % of the budget (optimal)."""
+    if budget.allocation == "uniform":
+        base = budget.uniform_level(n_pairs)
+        warm = warm_start(scenario, path, K=K, sensing=sensing, chi2=base)
+    else:       # the highest level of the step-time ladder whose warm start exists (pairs near a hazard then
+        top = budget.warm_level(n_pairs)        # spend more of the budget, the sharpening below pays for it)
+        for base in [top * 0.9**i for i in range(13)] + [scenario.chi2]:
+            try:
+                warm = warm_start(scenario, path, K=K, sensing=sensing, chi2=base)
+                break
+            except InfeasibleStartError:
+                if base == scenario.chi2:
+                    raise
+    best = float("inf")
+    for i in range(25):
+        cand = warm if i == 0 else sharpened(scenario, warm, 0.5**i, base)
+        clear = surrogate_clearance(scenario, cand.path)
+        best = float(np.sum(budget.factor * tail(clear)))
+        if budget.allocation == "uniform" and np.all(clear >= base * (1 + 1e-3)):
+            return cand
+        if budget.allocation != "uniform" and best <= START_SHARE * budget.budget:
+            return cand
+    raise InfeasibleStartError(f"no warm start meets the continuous-time risk budget {budget.budget:g} (with all "
+                               f"the sensing, the surrogate spends {best:.3g}: the means pass too close to a "
+                               f"hazard for the noise W; give a larger budget or a path further from the hazards)")
