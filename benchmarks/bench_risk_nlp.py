@@ -14,7 +14,10 @@ start inside the budget is an error row with its message. Per case: status,
 iterations of each IPOPT stage and the polish's return status, cost, CPU
 seconds, whether the answer verifies. Two worker processes.
 
-    python benchmarks/bench_risk_nlp.py [--seeds 10] [--method ipopt] [--out FILE]
+    python benchmarks/bench_risk_nlp.py [--seeds 10] [--method ipopt] [--kind steps] [--out FILE]
+
+``--kind continuous`` budgets the continuous-time bound instead (its
+warm start sharpens every posterior: docs/numerics.md).
 """
 
 from __future__ import annotations
@@ -44,17 +47,18 @@ def _scenario(family: str, seed: int) -> bn.Scenario:
 def _case(spec: dict) -> list[dict]:
     """Every (alpha, Delta) of one map: one plan per alpha, shared by the Deltas."""
     warnings.filterwarnings("ignore")
-    family, seed, method = spec["family"], spec["seed"], spec["method"]
+    family, seed, method, kind = spec["family"], spec["seed"], spec["method"], spec["kind"]
     sc = _scenario(family, seed)
     rows = []
     for alpha in ALPHAS:
         plan = bn.plan(sc, n_nodes=500, seed=seed if family == "paper-multi" else 0, alpha=alpha,
                        noise="per_step")
         for delta in DELTAS:
-            row = {"family": family, "seed": seed, "alpha": alpha, "delta": delta, "method": method}
+            row = {"family": family, "seed": seed, "alpha": alpha, "delta": delta, "method": method, "kind": kind}
             t0 = cpu_seconds()
             try:
-                res = bn.smooth(sc, plan, K=20, alpha=alpha, method=method, risk=delta, k_fallback=False)
+                res = bn.smooth(sc, plan, K=20, alpha=alpha, method=method, risk=delta, risk_kind=kind,
+                                k_fallback=False)
             except bn.BeliefNLPError as exc:
                 rows.append(row | {"status": "error", "error": str(exc)[:200]})
                 continue
@@ -95,9 +99,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10, help="paper-multi seeds and random-polygons maps 0..n-1")
     ap.add_argument("--method", default="ipopt")
+    ap.add_argument("--kind", default="steps", choices=("steps", "continuous"), help="the budget's risk_kind")
     ap.add_argument("--out", type=Path, default=HERE / "risk_nlp.json")
     args = ap.parse_args()
-    specs = [{"family": f, "seed": s, "method": args.method}
+    specs = [{"family": f, "seed": s, "method": args.method, "kind": args.kind}
              for f in ("paper-multi", "random-polygons") for s in range(args.seeds)]
     t0, load0 = time.time(), os.getloadavg()
     with ProcessPoolExecutor(2) as ex:                 # a list of rows per map

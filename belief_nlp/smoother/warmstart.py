@@ -367,15 +367,21 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
     return WarmStart(ws_path, lam, report, halvings)
 
 
+def scaled_posteriors(scenario: Scenario, path: BeliefPath, factor: float) -> BeliefPath:
+    """``path`` with every posterior after the start scaled by ``factor`` (the
+    priors follow from the per-step noise W); no certificates, no check."""
+    P = path.P.copy()
+    P[1:] *= factor
+    return BeliefPath.from_covariances(path.x, P, W=scenario.W, noise="per_step", meta=path.meta)
+
+
 def sharpened(scenario: Scenario, warm: WarmStart, factor: float, chi2: float) -> WarmStart:
     """``warm`` with every posterior after the start scaled by ``factor`` (< 1:
     more sensing at every step; P_k <= P_{k-1} + W keeps holding, every
     ellipse shrinks, so the path stays safe at ``chi2``), certificates and
     verification redone. The continuous-time budget's warm start uses it: its
     surrogate covariances P_prior_{k-1} + W shrink only with earlier sensing."""
-    P = warm.path.P.copy()
-    P[1:] *= factor
-    path = BeliefPath.from_covariances(warm.path.x, P, W=scenario.W, noise="per_step", meta=warm.path.meta)
+    path = scaled_posteriors(scenario, warm.path, factor)
     lam = certificates(scenario, path, chi2=chi2)
     report = verify(scenario, path, levels=chi2)
     if not report.safe:
