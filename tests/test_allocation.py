@@ -299,3 +299,41 @@ def test_result_saves_as_npz_and_smooth_reads_it(setting, results, tmp_path):
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
     with pytest.raises(bn.ScenarioFileError):
         bn.SmoothResult.load(tmp_path / "bad.npz")
+
+
+def test_budget_start_bisection_and_its_fallback(setting, monkeypatch):
+    """The ladder is searched by bisection for its lowest rung that fits; a
+    ladder out of order (a rung that cannot clear below one that can) falls
+    back to the first rung from the top, so a fitting rung is never missed."""
+    from types import SimpleNamespace
+
+    from belief_nlp.smoother import budget_start
+
+    sc, path = setting
+    rb = RiskBudget(0.05)
+    top = rb.warm_level(K * len(sc.hazards))
+    ladder = sorted({top * 0.9**i for i in range(13)} | ({sc.chi2} if sc.chi2 < top else set()), reverse=True)
+
+    def run(states):
+        calls = []
+
+        def fake_start(scenario, p, K, sensing, chi2, verify_start):
+            i = ladder.index(chi2)
+            calls.append(i)
+            if states[i] == "x":
+                raise InfeasibleStartError(f"rung {i} cannot clear")
+            return SimpleNamespace(path=i, lam=None)
+
+        monkeypatch.setattr(budget_start, "warm_start", fake_start)
+        monkeypatch.setattr(budget_start, "path_risk", lambda scenario, i, lam: SimpleNamespace(
+            step_time=0.01 if states[i] == "f" else 0.9))
+        return budget_start.budget_warm_start(sc, path, K, "minimal", rb).path, calls
+
+    ordered = "xxxfffff" + "o" * (len(ladder) - 8)
+    got, calls = run(ordered)
+    assert got == 7 and len(calls) <= 5                 # the lowest that fits, in a handful of starts
+    out_of_order = "xfx" + "o" * (len(ladder) - 3)
+    got, _ = run(out_of_order)
+    assert got == 1
+    with pytest.raises(InfeasibleStartError, match="certified bound is 0.9"):
+        run("xx" + "o" * (len(ladder) - 2))

@@ -67,6 +67,15 @@ def budget_warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensi
     last, first_over = _last_not_over(levels, rung)
     if last is not None and last[0] == "fits":
         return last[1]
+    # an out-of-order ladder (not seen: a lower level never needs more sensing) could hide
+    # a rung that fits from the bisection: before giving up, every rung from the top
+    for chi2 in levels:
+        state, warm, bound = rung(chi2)
+        if state == "fits":
+            return warm
+        if state == "over":          # the highest rung that clears: the least any rung spends
+            first_over = (state, warm, bound)
+            break
     why = (f"the best warm start's certified bound is {first_over[2]:.3g}" if first_over is not None
            else f"every pair at level {levels[-1]:.4g}: {errors[0] if errors else 'no warm start'}")
     err = errors[0] if errors else None
