@@ -59,7 +59,8 @@ class BeliefModel:
     With ``risk`` (a :class:`belief_nlp.allocation.RiskBudget`) the collision
     level is the budget's: uniform, every pair at g^-1(Delta / (K J)); optimal,
     each pair's level a variable under the budget (``data.budget``), with the
-    uniform level at 90 % of Delta as the warm start's. A continuous-time
+    uniform level at 90 % of Delta as the model's reference level (the top
+    of the warm start's ladder, :mod:`belief_nlp.smoother.budget_start`). A continuous-time
     budget (``risk.kind == "continuous"``) asks each pair's level at both ends
     of its transition under Sigma_k (``data.continuous``,
     :meth:`surrogate_information`) and spends Delta / 3 on the levels.

@@ -9,14 +9,15 @@ collision level tau (``collision_chi2``) for every transition-hazard pair;
 the target containment keeps the scenario's own chi2 (it is not a
 collision).
 
-The smoother starts a budgeted run from the uniform allocation over its K J
-pairs (K its horizon: the scenario's ``horizon.K`` when the path fits in it,
-else one step per path edge; J the hazards): every pair at
-``RiskBudget(Delta).warm_level(K J)`` (``uniform_level`` for
-``allocation="uniform"``, lower). A plan whose edges are clear at that level
-gives it a feasible start (sensing at the cut points only shrinks the
-ellipses), and its own certified sum is at most its K J pairs times
-g(level) <= 0.9 Delta. K is not known before planning, so the level is found
+The smoother starts a budgeted run with every one of its K J pairs (K its
+horizon: the scenario's ``horizon.K`` when the path fits in it, else one
+step per path edge; J the hazards) at one level, the lowest of a ladder
+topped by ``RiskBudget(Delta).warm_level(K J)`` whose certified sum fits
+(``uniform_level`` for ``allocation="uniform"``, lower;
+:mod:`belief_nlp.smoother.budget_start`). A plan whose edges are clear at
+``warm_level`` gives it a feasible start (sensing at the cut points only
+shrinks the ellipses), and its own certified sum is at most its K J pairs
+times g(level) <= 0.9 Delta. K is not known before planning, so the level is found
 in rounds:
 
 1. n = J max(horizon, K_est) pairs, K_est = ceil(distance from the start

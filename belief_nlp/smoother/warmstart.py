@@ -233,8 +233,8 @@ def warm_start(scenario: Scenario, path: Any, K: int | None = None,
     chi2 : float, optional
         The collision level every transition must clear (None: the
         scenario's); the target keeps the scenario's own level. A risk
-        budget's warm start uses its uniform level here
-        (:meth:`belief_nlp.allocation.RiskBudget.warm_level`).
+        budget's warm start tries a ladder of levels here
+        (:mod:`belief_nlp.smoother.budget_start`).
     verify_start : bool, optional
         Verify the warm start independently (default). False leaves
         ``report`` None: :func:`belief_nlp.smooth` does so, because its
