@@ -167,6 +167,28 @@ def test_polish_start_frees_only_the_levels_its_switch_off_breaks(setting):
     assert np.allclose(lo[~free], z.tau[~free]) and np.allclose(z0[-n:], z.tau.ravel())
 
 
+def test_continuous_polish_start_frees_the_transitions_after_switched_off_steps(setting):
+    """Under a continuous-time budget a pair's rows at transition k + 1 read
+    Sigma_{k+1} through Q_k, which the polish moves when step k's sensing is
+    switched off: those pairs' levels are free; with nothing switched off
+    every level is held."""
+    from belief_nlp.model.nlp_form import build_nlp
+
+    sc, path = setting
+    model = BeliefModel(sc, K, 1.0, risk=RiskBudget(BUDGET, kind="continuous"))
+    ws = warm_start(sc, path, K=K, chi2=sc.chi2)
+    z = model.tighten(model.from_path(ws.path, ws.lam))
+    z.tau = np.full((K, len(sc.hazards)), model.data.level_bounds[0])
+    nlp = build_nlp(model, "cholesky")
+    zv = nlp.pack(z)
+    n = K * len(sc.hazards)
+    _, lo, hi = nlp.switch_off(zv, nlp.lbz, nlp.ubz, 1e9)              # every step's sensing off
+    free = (lo[-n:] < hi[-n:]).reshape(K, -1)
+    assert free[1:].all()
+    _, lo, hi = nlp.switch_off(zv, nlp.lbz, nlp.ubz, 0.0)              # nothing off: every level held
+    assert np.all(lo[-n:] == hi[-n:])
+
+
 
 @pytest.mark.parametrize("budget", [0.05, BUDGET])
 def test_optimal_budget_starts_at_the_lowest_level_that_fits(setting, budget):

@@ -187,8 +187,13 @@ class NLPProblem:
             # "Risk allocation in the NLP polish")
             n = K * self.info["J"]
             after = self.margin_values(z0)[0]
-            broken = ((after < 0) & (after < before)).reshape(n, 2).any(axis=1)
-            held = z0.size - n + np.flatnonzero(~broken)
+            broken = ((after < 0) & (after < before)).reshape(K, self.info["J"], 2).any(axis=2)
+            if self.model.data.continuous:
+                # a continuous budget's rows of transition k + 1 read Sigma_{k+1} through Q_k,
+                # which re-closing step k's Kalman rows without its switched-off sensing moves:
+                # those pairs re-balance too (held, 10 of 25 polishes at alpha = 1 ran to the cap)
+                broken[1:] |= off_cols.any(axis=1)[:-1, None]
+            held = z0.size - n + np.flatnonzero(~broken.ravel())
             lbz[held] = ubz[held] = z0[held]
         return z0, lbz, ubz
 
