@@ -165,7 +165,8 @@ class NLPProblem:
                    slack: float = 0.1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Copies of the "cholesky" values ``z`` and bounds with every column
         of L whose norm is at most floor (1 + slack) fixed at 0 (and a
-        budget's levels at their values): :meth:`without_sensing` of packed
+        budget's levels held at their values, but those of the pairs the
+        switch-off breaks): :meth:`without_sensing` of packed
         values, e.g. an earlier polish's answer, whose switched-off columns
         are 0 and stay off."""
         tri, d, K, off = self.info["tri"], self.info["d"], self.info["K"], self.info["sensing_offset"]

@@ -44,15 +44,17 @@ def budget_warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensi
     if budget.kind == "continuous":
         return _continuous(scenario, path, K, sensing, budget, n_pairs)
     uniform = budget.allocation == "uniform"
-    if uniform:
-        levels = [budget.uniform_level(n_pairs)]
-    else:
-        top = budget.warm_level(n_pairs)
-        levels = sorted({top * 0.9**i for i in range(13)} | ({scenario.chi2} if scenario.chi2 < top else set()),
-                        reverse=True)
+    levels = [budget.uniform_level(n_pairs)] if uniform else _ladder(scenario, budget, n_pairs)
     errors: list[InfeasibleStartError] = []
+    memo: dict[float, tuple[str, WarmStart | None, float]] = {}
 
     def rung(chi2: float) -> tuple[str, WarmStart | None, float]:
+        # memoised: the fallback below revisits the rungs the bisection built
+        if chi2 not in memo:
+            memo[chi2] = _rung(chi2)
+        return memo[chi2]
+
+    def _rung(chi2: float) -> tuple[str, WarmStart | None, float]:
         try:
             # unverified, as every start of smooth(): the path returned is verified at its own levels
             warm = warm_start(scenario, path, K=K, sensing=sensing, chi2=chi2, verify_start=False)
@@ -84,6 +86,15 @@ def budget_warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensi
                                getattr(err, "transition", None), getattr(err, "obstacle", None))
 
 
+def _ladder(scenario: Scenario, budget: RiskBudget, n_pairs: int) -> list[float]:
+    """The optimal allocation's start levels, descending: the uniform level at
+    90 % of the budget, x0.9 per rung (13 rungs), and the scenario's chi2 when
+    it is below the top."""
+    top = budget.warm_level(n_pairs)
+    return sorted({top * 0.9**i for i in range(13)} | ({scenario.chi2} if scenario.chi2 < top else set()),
+                  reverse=True)
+
+
 def _last_not_over(levels: list[float], rung: Callable[[float], tuple]) -> tuple[tuple | None, tuple | None]:
     """Bisection over ``levels`` (descending) for the boundary of a ladder that
     reads infeasible (too high to clear), then fits, then over the budget
@@ -112,18 +123,17 @@ def _continuous(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
     (optimal). f is found by bisection on log2 f in [-24, 0]; halving it
     until the surrogate fit (before session 18) sensed up to 2x too much in
     every step, and IPOPT failed from 2 of 7 such starts on paper-multi."""
-    if budget.allocation == "uniform":
-        base = budget.uniform_level(n_pairs)
-        warm = warm_start(scenario, path, K=K, sensing=sensing, chi2=base)
-    else:       # the highest level of the step-time ladder whose warm start exists (pairs near a hazard then
-        top = budget.warm_level(n_pairs)        # spend more of the budget, the sharpening below pays for it)
-        for base in [top * 0.9**i for i in range(13)] + [scenario.chi2]:
-            try:
-                warm = warm_start(scenario, path, K=K, sensing=sensing, chi2=base)
-                break
-            except InfeasibleStartError:
-                if base == scenario.chi2:
-                    raise
+    # the uniform level, or the highest rung of the step-time ladder whose start exists (pairs near
+    # a hazard then spend more of the budget, the sharpening below pays for it); unverified, as
+    # every start of smooth(): the sharpened start is verified, the path returned too
+    levels = [budget.uniform_level(n_pairs)] if budget.allocation == "uniform" else _ladder(scenario, budget, n_pairs)
+    for i, base in enumerate(levels):
+        try:
+            warm = warm_start(scenario, path, K=K, sensing=sensing, chi2=base, verify_start=False)
+            break
+        except InfeasibleStartError:
+            if i == len(levels) - 1:
+                raise
     spent = [float("inf")]
 
     def fits(exponent: float) -> bool:
