@@ -84,6 +84,7 @@ class IpoptBackend(NLPBackend):
     stage_options = {"logchol": LOGCHOL_IPOPT_OPTIONS, "polish": POLISH_IPOPT_OPTIONS}
     shared_functions = {"grad_f": "nlp_grad_f", "jac_g": "nlp_jac_g", "hess_lag": "nlp_hess_l"}
     warm_duals = True
+    kalman_box = True
     resume_options = RESUME_IPOPT_OPTIONS
 
     def nlpsol_options(self, opts: dict, log_path: str | None) -> dict:

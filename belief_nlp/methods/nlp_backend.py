@@ -54,6 +54,10 @@ class NLPBackend:
     #: limit, no restarts and one history record per solve; the time limit
     #: inside a solve is then its :meth:`solve`'s to keep (fatrop: a watchdog)
     calls_back = True
+    #: whether a restart may run inside the Kalman box (NLPProblem.kalman_box) and
+    #: an iterate ten times outside it ends an attempt (measured for IPOPT only:
+    #: docs/numerics.md, "The Kalman box")
+    kalman_box = False
 
     def options(self, solver_options: dict, tol: float, stage: str) -> dict:
         """The plug-in's options for ``stage``, the user's ``solver_options``

@@ -28,8 +28,14 @@ runs from the warm start.
 
 When a stage stops without converging (iteration share, solver failure, a
 stall of ``stall`` iterations without a lower feasible cost), the solver is
-restarted from the best exactly safe point so far. The solver's last point is
-the answer when it converged and the point is exactly safe; otherwise the
+restarted from the best exactly safe point so far. For a backend with
+``kalman_box`` (IPOPT): when there is none below the stage's start, when an iterate left the Kalman box tenfold (a lifted
+factor |M_ij| > 10 sqrt((W^-1)_ii): the recorder stops it, status
+"Left_Kalman_Box"), or when the stage converged above its start, the restart
+runs inside that box (:meth:`~belief_nlp.model.nlp_form.NLPProblem.kalman_box`:
+bounds every Kalman-feasible point satisfies; docs/numerics.md, "The Kalman
+box"). The solver's last point is the answer when it converged and the point
+is exactly safe (the lower one when both attempts converged); otherwise the
 best exactly safe recorded iterate is (the driver's rule).
 
 History: one record per solver iteration (stages and restarts continue the
@@ -157,7 +163,8 @@ POLISH_RETRY = 4
 #: iterations); past them the usual first stage runs instead
 RESUME_LIMIT = 5
 
-_STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded", "stalled": "Stalled"}
+_STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded", "stalled": "Stalled",
+          "left_box": "Left_Kalman_Box"}
 
 
 def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, *, formulation: str, opts: dict,
@@ -180,11 +187,14 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
                                                    floor, max(int(candidates), 0), cache, scale, prefix)
     stage.build_time = time.perf_counter() - t_build
     stage.limit = int(max_iter)
-    recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0)
+    can_box = backend.kalman_box and "m_offset" in nlp.info
+    recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0,
+                   runaway=bool(restarts) and can_box)
     recorder.offset = offset
     z_start = start
     stage.best = (problem.model.cost(start)[0], start, "the stage's start")
-    n_attempts = 0
+    start_cost = stage.best[0]
+    n_attempts, boxed, above = 0, False, None
     while True:
         remaining = max_iter - stage.used
         budget = remaining if n_attempts >= restarts else max(1, remaining - remaining // 3)
@@ -197,6 +207,8 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         t_solve, c_solve, log_at = time.perf_counter(), time.process_time(), _log_size(recorder.log_path)
         try:
             x0, lbx, ubx = bounds(nlp, z_start) if bounds else (nlp.pack(z_start), nlp.lbz, nlp.ubz)
+            if boxed:
+                lbx, ubx = nlp.kalman_box(lbx, ubx)
             warm = {}
             if duals is not None and n_attempts == 0:
                 # a row without bounds (a frozen step's, nlp_prefix) starts without a multiplier
@@ -234,16 +246,27 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         found = _safe_points(problem, nlp, recorder, z_end, status == "converged")
         _record_attempt(problem, nlp, recorder, n_rows, found, raw)
         if status == "converged" and found and found[0][3] is None:
-            stage.answer = found[0]
-            break
+            if boxed or not can_box or found[0][0] <= start_cost:
+                stage.answer = found[0] if above is None or found[0][0] <= above[0][0] else above[0]
+                break
+            above = (found[0], raw)    # a stationary point costlier than the start: kept, and one more try
         for cand in found:
             if cand[0] < stage.best[0]:
                 stage.best = cand[:3]
-        if n_attempts > restarts or status == "time_limit" or stage.used >= max_iter \
-                or stage.best[1] is z_start or problem.stop_requested:
+        if n_attempts > restarts or status == "time_limit" or stage.used >= max_iter or problem.stop_requested:
             break
-        log.info("%s %s after %d iterations; restarting from %s", backend.name, raw, stage.used, stage.best[2])
+        if stage.best[1] is z_start or recorder.stop_reason == "left_box":
+            # nothing safe below the start, or a runaway: again inside the box the
+            # Kalman equality implies (docs/numerics.md, "The Kalman box"); a stage
+            # that had it already, or an NLP without lifted Q, ends
+            if boxed or not can_box:
+                break
+            boxed = True
+        log.info("%s %s after %d iterations; restarting from %s%s", backend.name, raw, stage.used, stage.best[2],
+                 " inside the Kalman box" if boxed else "")
         z_start = stage.best[1]
+    if stage.answer is None and above is not None:
+        stage.answer, stage.status = above
     return stage
 
 
@@ -480,7 +503,8 @@ def nlp_options(solver: str) -> dict[str, Option]:
         "polish": Option(50, "iteration cap of the polish after the 'logchol' stage (0: none)", _count),
         "regularisation": Option(1e-4, "weight of the certificates' proximal term", _nonneg),
         "margin": Option(DEFAULT_POLICY.nlp, "relative clearance margin kept in the NLP's collision rows", _nonneg),
-        "restarts": Option(1, "restarts from the best safe point after an unconverged stop", _count),
+        "restarts": Option(1, "restarts after an unconverged stop: from the best safe point, or inside the "
+                              "Kalman box (docs/numerics.md)", _count),
         "stall": Option(300, "iterations without a lower feasible cost that end an attempt", _count),
         "candidates": Option(5, "feasible iterates kept as fallback candidates", _count),
         "cache": Option(True, f"reuse the NLP and {solver} instance of an earlier call with the same model",

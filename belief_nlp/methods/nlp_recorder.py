@@ -14,6 +14,12 @@ __all__ = ["Recorder"]
 
 _MAX, _MIN = np.maximum.reduce, np.minimum.reduce
 
+#: an iterate with a lifted factor |M_ij| above RUNAWAY sqrt((W^-1)_ii) ends the
+#: attempt (Q_k a hundredfold beyond any Kalman-feasible point): on paper-multi and
+#: random-polygons (K = 20, 40) no iterate passed 1.05; on tutorial at confidence
+#: 0.99-0.999 the runs that failed passed 65-2e6 (docs/numerics.md, "The Kalman box")
+RUNAWAY = 10.0
+
 
 class Recorder(ca.Callback):
     """Iteration callback of a CasADi nlpsol: history, best feasible iterates, progress.
@@ -39,6 +45,7 @@ class Recorder(ca.Callback):
         self.deadline = None
         self.stop_reason = ""
         self.stall = stall
+        self.runaway = False                   # stop an iterate far outside the Kalman box (reset)
         self.log_path: str | None = None       # the solver's log file, if its backend writes one
         self.best_cost = np.inf
         self.best_it = 0
@@ -68,10 +75,17 @@ class Recorder(ca.Callback):
             self._parts_buf.set_res(i, memoryview(out))
         if self.pv is not None:
             self._parts_buf.set_arg(1, memoryview(self.pv))
+        # the free entries of the lifted factors M_k and RUNAWAY times their Kalman box
+        # (NLPProblem.kalman_box; M is never scaled, nlp_scaled; a stage-ordered form has none)
+        _, ub = nlp.kalman_box(nlp.lbz, nlp.ubz) if "m_offset" in nlp.info else (None, nlp.ubz)
+        self._m = np.flatnonzero(ub < nlp.ubz)
+        self._m_limit = RUNAWAY * ub[self._m]
 
-    def reset(self, keep: int, bar, stall: int) -> None:
-        """Forget a previous solve (the recorder lives as long as its solver)."""
-        self.keep, self.bar, self.stall = keep, bar, stall
+    def reset(self, keep: int, bar, stall: int, runaway: bool = False) -> None:
+        """Forget a previous solve (the recorder lives as long as its solver);
+        ``runaway``: stop an attempt whose iterate leaves the Kalman box by
+        the factor RUNAWAY (then ``stop_reason`` is "left_box")."""
+        self.keep, self.bar, self.stall, self.runaway = keep, bar, stall, runaway
         self.calls = self.offset = 0
         self.rows, self.zs, self.pvs, self.best = [], [], [], []
 
@@ -211,6 +225,12 @@ class Recorder(ca.Callback):
             return True
         if self.deadline is not None and now > self.deadline:
             self.stop_reason = "time_limit"
+            return True
+        if self.runaway and bool((np.abs(zv[self._m]) > self._m_limit).any()):
+            # prior information a hundredfold beyond any Kalman-feasible point: the
+            # runaway that ended in Infeasible_Problem_Detected or Invalid_Number_Detected
+            # hundreds of iterations later; stop so a restart inside the box can solve
+            self.stop_reason = "left_box"
             return True
         if self.stall and feasible and self.calls - 1 - self.best_it >= self.stall:
             # feasible, but no feasible iterate has lowered the cost for `stall`

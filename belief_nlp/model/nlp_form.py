@@ -161,6 +161,22 @@ class NLPProblem:
             raise ValidationError("formulation", "without_sensing() needs the 'cholesky' NLP")
         return self.switch_off(self.pack(lay), self.lbz, self.ubz, floor, slack)
 
+    def kalman_box(self, lbz: np.ndarray, ubz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of the bounds with every free entry of the lifted factors M_k
+        within +-sqrt((W^-1)_ii) (row i): Q_k = (Y_{k-1}^-1 + W)^-1 < W^-1 on
+        the Kalman equality (Lemma 2), so no feasible point is cut off; the box
+        stops Newton steps that grow Q_k a thousandfold (docs/numerics.md,
+        "The Kalman box"). Unchanged for an NLP without lifted Q."""
+        lbz, ubz = np.array(lbz, float), np.array(ubz, float)
+        if "m_offset" not in self.info:
+            return lbz, ubz
+        K, tri, off = self.info["K"], self.info["tri"], self.info["m_offset"]
+        cap = np.tile(np.sqrt(np.diag(np.linalg.inv(self.model.data.W)))[[i for i, _ in tri]], K - 1)
+        idx = off + np.flatnonzero(lbz[off:off + cap.size] < ubz[off:off + cap.size])   # frozen entries stay
+        lbz[idx] = np.maximum(lbz[idx], -cap[idx - off])
+        ubz[idx] = np.minimum(ubz[idx], cap[idx - off])
+        return lbz, ubz
+
     def switch_off(self, z: np.ndarray, lbz: np.ndarray, ubz: np.ndarray, floor: float,
                    slack: float = 0.1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Copies of the "cholesky" values ``z`` and bounds with every column
@@ -476,7 +492,8 @@ def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float =
                           model,
                           info={"n_variables": int(z.shape[0]), "n_constraints": int(g.shape[0]),
                                 "n_kalman": n_kal, "n_psd": n_psd, "n_target": n_tgt, "n_budget": n_bud,
-                                "sensing_offset": nX, "tri": tri, "d": d, "K": K, "J": J, "floor": floor},
+                                "sensing_offset": nX, "tri": tri, "d": d, "K": K, "J": J, "floor": floor,
+                                **({"m_offset": nX + nS} if lift_q else {})},
                           _view=view if pair else None, graph=graph)
 
     def lam_values(lay: Layout) -> np.ndarray:
