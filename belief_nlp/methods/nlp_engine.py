@@ -29,14 +29,15 @@ runs from the warm start.
 When a stage stops without converging (iteration share, solver failure, a
 stall of ``stall`` iterations without a lower feasible cost), the solver is
 restarted from the best exactly safe point so far. For a backend with
-``kalman_box`` (IPOPT): when there is none below the stage's start, when an iterate left the Kalman box tenfold (a lifted
-factor |M_ij| > 10 sqrt((W^-1)_ii): the recorder stops it, status
-"Left_Kalman_Box"), or when the stage converged above its start, the restart
-runs inside that box (:meth:`~belief_nlp.model.nlp_form.NLPProblem.kalman_box`:
-bounds every Kalman-feasible point satisfies; docs/numerics.md, "The Kalman
-box"). The solver's last point is the answer when it converged and the point
-is exactly safe (the lower one when both attempts converged); otherwise the
-best exactly safe recorded iterate is (the driver's rule).
+``kalman_box`` (IPOPT) the restart runs inside the Kalman box
+(:meth:`~belief_nlp.model.nlp_form.NLPProblem.kalman_box`: bounds every
+Kalman-feasible point satisfies; docs/numerics.md, "The Kalman box") when
+there is no such point below the stage's start, when an iterate left the box
+tenfold (a lifted factor |M_ij| > 10 sqrt((W^-1)_ii): the recorder stops it,
+status "Left_Kalman_Box"), or when the stage converged above its start. The
+solver's last point is the answer when it converged and the point is exactly
+safe (the lower one when both attempts converged); otherwise the best
+exactly safe recorded iterate is (the driver's rule).
 
 History: one record per solver iteration (stages and restarts continue the
 numbering; IPOPT calls back once more than it counts when it enters its
@@ -67,15 +68,15 @@ import numpy as np
 
 from ..errors import ValidationError
 from ..model import Layout
-from ..model.nlp_form import FORMULATIONS, NLPProblem
+from ..model.nlp_form import NLPProblem
 from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.policy import DEFAULT_POLICY
-from ..smoother.registry import Option
 from ..smoother.result import STATUSES, IterationRecord
 from .nlp_backend import NLPBackend, solver_stats
 from . import nlp_resume
 from ..model.nlp_prefix import longer
 from .nlp_build import _CACHE, _GRAPHS, _base_key, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
+from .nlp_options import POLISH_RETRY, nlp_options  # noqa: F401 - nlp_options: re-exported
 from .nlp_recorder import Recorder
 
 __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
@@ -149,13 +150,6 @@ class _Stage:
     duals: tuple | None = None           # (lam_x, lam_g) of the answer's solve (backends with warm_duals)
     z: np.ndarray | None = None          # the variables of that solve (with duals)
 
-
-#: the default ``polish_retry``: re-plans (with ``resume``) that skip the
-#: polish after a run whose polish did not lower its answer, while stage 1's
-#: answer is below the warm start. At K = 80 the floor's sensing cannot be
-#: switched off and the polish ran to its 50 iterations for nothing at every
-#: re-plan (docs/numerics.md, "The polish resumed alone"); the fifth tries again
-POLISH_RETRY = 4
 
 #: iterations per step a first stage resumed from an earlier answer may take
 #: (it took 4-9 on paper-multi at K = 20 and 65-167 at K = 80, where a fixed
@@ -482,37 +476,3 @@ def _outcome(problem: SmoothingProblem, backend: NLPBackend, stages: list[_Stage
     if problem.stop_requested and status != "converged":
         status, message = "stopped", STATUSES["stopped"]
     return Outcome(status, message, answer[1] if answer else None, backend.name, stats)
-
-
-def _nonneg(v: Any) -> str | None:
-    return None if isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0 else "must be a number >= 0"
-
-
-def _count(v: Any) -> str | None:
-    return None if isinstance(v, int) and not isinstance(v, bool) and v >= 0 else "must be an integer >= 0"
-
-
-def nlp_options(solver: str) -> dict[str, Option]:
-    """The options every NLP method takes (the keywords of :func:`run_nlp`)."""
-    return {
-        "formulation": Option("logchol", f"NLP variables: one of {FORMULATIONS}",
-                              lambda v: None if v in FORMULATIONS else f"must be one of {FORMULATIONS}"),
-        "floor": Option(1e-2, "smallest diagonal entry of L in the 'logchol' stage (scaled units)",
-                        lambda v: None if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0
-                        else "must be a number > 0"),
-        "polish": Option(50, "iteration cap of the polish after the 'logchol' stage (0: none)", _count),
-        "regularisation": Option(1e-4, "weight of the certificates' proximal term", _nonneg),
-        "margin": Option(DEFAULT_POLICY.nlp, "relative clearance margin kept in the NLP's collision rows", _nonneg),
-        "restarts": Option(1, "restarts after an unconverged stop: from the best safe point, or inside the "
-                              "Kalman box (docs/numerics.md)", _count),
-        "stall": Option(300, "iterations without a lower feasible cost that end an attempt", _count),
-        "candidates": Option(5, "feasible iterates kept as fallback candidates", _count),
-        "cache": Option(True, f"reuse the NLP and {solver} instance of an earlier call with the same model",
-                        lambda v: None if isinstance(v, bool) else "must be True or False"),
-        "polish_retry": Option(POLISH_RETRY, "re-plans (with resume) that skip the polish after one whose polish "
-                                             "did not lower its answer, while the first stage's answer is below "
-                                             "the warm start (0: never skip)", _count),
-        "resume": Option(None, "an earlier answer's first-stage state (SmoothResult.resume) to start that stage "
-                               "from, on the same scenario and K (bn.replan passes it; used by solvers that take "
-                               "initial multipliers: IPOPT)", nlp_resume.check),
-    }

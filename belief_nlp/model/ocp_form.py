@@ -305,8 +305,8 @@ def build_ocp(nlp: NLPProblem) -> OCPProblem:
     margins = ca.Function("ocp_margins", [z_o, start], nlp.margins(z_src, start), ["z", "start"],
                           ["collision", "target"])
     # "m_offset" places the source's lifted factors, not this form's (no Kalman box here)
-    info = {**{k: v for k, v in nlp.info.items() if k != "m_offset"}, "n_variables": int(z_o.shape[0]), "n_constraints": int(g_o.shape[0]),
-            "n_carried": int(sum(nx)), "stages_of_source": lab}
+    info = {**{k: v for k, v in nlp.info.items() if k != "m_offset"}, "n_variables": int(z_o.shape[0]),
+            "n_constraints": int(g_o.shape[0]), "n_carried": int(sum(nx)), "stages_of_source": lab}
     return OCPProblem(nlp, z_o, nlp.p, f_o, g_o, np.asarray(lbz, float), np.asarray(ubz, float),
                       np.asarray(lbg, float), np.asarray(ubg, float), parts, margins, src, orig, source_rows,
                       K - 1, nx, nu, ng, info)

@@ -1,0 +1,54 @@
+"""The options every NLP method takes (the keywords of
+:func:`belief_nlp.methods.nlp_engine.run_nlp`), with their checks."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..model.nlp_form import FORMULATIONS
+from ..smoother.policy import DEFAULT_POLICY
+from ..smoother.registry import Option
+from . import nlp_resume
+
+__all__ = ["nlp_options", "POLISH_RETRY"]
+
+#: the default ``polish_retry``: re-plans (with ``resume``) that skip the
+#: polish after a run whose polish did not lower its answer, while stage 1's
+#: answer is below the warm start. At K = 80 the floor's sensing cannot be
+#: switched off and the polish ran to its 50 iterations for nothing at every
+#: re-plan (docs/numerics.md, "The polish resumed alone"); the fifth tries again
+POLISH_RETRY = 4
+
+
+def _nonneg(v: Any) -> str | None:
+    return None if isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0 else "must be a number >= 0"
+
+
+def _count(v: Any) -> str | None:
+    return None if isinstance(v, int) and not isinstance(v, bool) and v >= 0 else "must be an integer >= 0"
+
+
+def nlp_options(solver: str) -> dict[str, Option]:
+    """The options every NLP method takes (the keywords of :func:`run_nlp`)."""
+    return {
+        "formulation": Option("logchol", f"NLP variables: one of {FORMULATIONS}",
+                              lambda v: None if v in FORMULATIONS else f"must be one of {FORMULATIONS}"),
+        "floor": Option(1e-2, "smallest diagonal entry of L in the 'logchol' stage (scaled units)",
+                        lambda v: None if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0
+                        else "must be a number > 0"),
+        "polish": Option(50, "iteration cap of the polish after the 'logchol' stage (0: none)", _count),
+        "regularisation": Option(1e-4, "weight of the certificates' proximal term", _nonneg),
+        "margin": Option(DEFAULT_POLICY.nlp, "relative clearance margin kept in the NLP's collision rows", _nonneg),
+        "restarts": Option(1, "restarts after an unconverged stop: from the best safe point, or inside the "
+                              "Kalman box (docs/numerics.md)", _count),
+        "stall": Option(300, "iterations without a lower feasible cost that end an attempt", _count),
+        "candidates": Option(5, "feasible iterates kept as fallback candidates", _count),
+        "cache": Option(True, f"reuse the NLP and {solver} instance of an earlier call with the same model",
+                        lambda v: None if isinstance(v, bool) else "must be True or False"),
+        "polish_retry": Option(POLISH_RETRY, "re-plans (with resume) that skip the polish after one whose polish "
+                                             "did not lower its answer, while the first stage's answer is below "
+                                             "the warm start (0: never skip)", _count),
+        "resume": Option(None, "an earlier answer's first-stage state (SmoothResult.resume) to start that stage "
+                               "from, on the same scenario and K (bn.replan passes it; used by solvers that take "
+                               "initial multipliers: IPOPT)", nlp_resume.check),
+    }
