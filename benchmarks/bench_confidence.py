@@ -8,14 +8,15 @@ start ran into Infeasible_Problem_Detected or Invalid_Number_Detected on 12 of
 "The Kalman box").
 
 Protocol: ``tutorial`` (planner seeds 0..n-1 at the scenario's N, K = 6, 8,
-10 and 12) and ``paper-multi`` (seeds 0..n-1, N = 500, per-step noise,
-K = 20), alpha 0.1 and 1.0, one plan per (scenario, seed, alpha, level)
+10 and 12), ``paper-multi`` (seeds 0..n-1, N = 500, per-step noise,
+K = 20) and ``cube3d`` (``--cube3d``: seeds 0..n-1 at the scenario's N,
+the plan's own steps (K None), K = 10 and 14), alpha 0.1 and 1.0, one plan per (scenario, seed, alpha, level)
 planned at that level. A plan longer than K edges is an error row (no
 fallback to one step per edge). Per case: status, the solver's attempts
 (return status and iterations), cost, CPU seconds, whether the answer
 verifies. Two worker processes.
 
-    python benchmarks/bench_confidence.py [--seeds 5] [--method ipopt] [--out FILE]
+    python benchmarks/bench_confidence.py [--seeds 5] [--method ipopt] [--cube3d] [--out FILE]
 """
 
 from __future__ import annotations
@@ -35,7 +36,9 @@ from _record import cpu_seconds, write_record
 HERE = Path(__file__).resolve().parent / "results"
 LEVELS = (0.9, 0.99, 0.995, 0.999)
 ALPHAS = (0.1, 1.0)
-HORIZONS = {"tutorial": (6, 8, 10, 12), "paper-multi": (20,)}
+#: the solvers' own statuses of a converged attempt (IPOPT's, Uno's)
+SUCCESS = ("Solve_Succeeded", "Solved_To_Acceptable_Level", "Converged with feasible KKT point")
+HORIZONS = {"tutorial": (6, 8, 10, 12), "paper-multi": (20,), "cube3d": (None, 10, 14)}
 
 
 def _case(spec: dict) -> list[dict]:
@@ -77,8 +80,7 @@ def _summary(records: list[dict]) -> dict:
             table[f"{name} {level:g}"] = {
                 "cases": len(rows),
                 "converged and verified": sum(r["status"] == "converged" and r["verified"] for r in rows),
-                "first attempt failed": sum(bool(r["attempts"]) and r["attempts"][0][0] not in
-                                            ("Solve_Succeeded", "Solved_To_Acceptable_Level") for r in rows),
+                "first attempt failed": sum(bool(r["attempts"]) and r["attempts"][0][0] not in SUCCESS for r in rows),
                 "median iterations": float(np.median([r["iterations"] for r in rows])),
                 "total iterations": int(sum(r["iterations"] for r in rows)),
                 "total CPU s": round(float(sum(r["cpu_s"] for r in rows)), 2),
@@ -91,10 +93,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5, help="planner seeds 0..n-1 per scenario")
     ap.add_argument("--method", default="ipopt")
+    ap.add_argument("--cube3d", action="store_true", help="also the 3-D scenario cube3d")
     ap.add_argument("--out", type=Path, default=HERE / "confidence.json")
     args = ap.parse_args()
+    names = [n for n in HORIZONS if n != "cube3d" or args.cube3d]
     specs = [{"scenario": name, "seed": s, "level": level, "method": args.method}
-             for name in HORIZONS for level in LEVELS for s in range(args.seeds)]
+             for name in names for level in LEVELS for s in range(args.seeds)]
     t0, load0 = time.time(), os.getloadavg()
     with ProcessPoolExecutor(2) as ex:                 # a list of rows per (scenario, seed, level)
         records = [row for rows in ex.map(_case, specs) for row in rows]

@@ -158,3 +158,21 @@ def test_casadis_plugin_history_reads_the_iterates_own_rows(tiny_start):
     assert 0.0 < rows[-1].min_margin < 1e-2 and rows[-1].kalman_gap < 1e-8      # an active row at the optimum
     assert sum(h.accepted for h in rows) > 1
     assert rows[-1].cost == pytest.approx(r.cost, rel=1e-6)
+
+
+@pytest.mark.parametrize("interface", ["unopy", "casadi"])
+def test_an_infeasible_stationary_point_is_rescued_by_funnel_sqp(interface):
+    """cube3d at confidence 0.9 on the plan's own 5 steps: filter-SQP's first
+    attempt ended at an infeasible stationary point (3-6 iterations, session
+    19), and the warm start was returned. The restart from the start with
+    Uno's funnel-SQP converges, verified, to IPOPT's optimum (a second
+    solver), and the history runs on through both attempts."""
+    if interface == "unopy" and not HAVE_UNOPY:
+        pytest.skip("unopy is not installed (pip install -e '.[sqp]')")
+    sc = bn.load_scenario("cube3d").with_options(confidence=0.9)
+    plan = bn.plan(sc, seed=0, alpha=0.1)
+    r = bn.smooth(sc, plan, method="sqp", alpha=0.1, interface=interface)
+    assert r.status == "converged" and r.safe and bn.verify(sc, r.path).safe
+    ipo = bn.smooth(sc, plan, method="ipopt", alpha=0.1)
+    assert r.cost == pytest.approx(ipo.cost, rel=1e-3) and r.cost < r.initial_cost
+    assert [h.iteration for h in r.history] == list(range(r.nit + 1))

@@ -58,6 +58,10 @@ class NLPBackend:
     #: an iterate ten times outside it ends an attempt (measured for IPOPT only:
     #: docs/numerics.md, "The Kalman box")
     kalman_box = False
+    #: the ``stage_options`` key of a first-stage restart from the start after an
+    #: attempt found nothing safe below it (None: no such restart). Uno: funnel-SQP
+    #: after filter-SQP's infeasible stationary points (docs/numerics.md, "SQP baseline")
+    rescue_stage: str | None = None
 
     def options(self, solver_options: dict, tol: float, stage: str) -> dict:
         """The plug-in's options for ``stage``, the user's ``solver_options``

@@ -34,8 +34,9 @@ restarted from the best exactly safe point so far. For a backend with
 Kalman-feasible point satisfies; docs/numerics.md, "The Kalman box") when
 there is no such point below the stage's start, when an iterate left the box
 tenfold (a lifted factor |M_ij| > 10 sqrt((W^-1)_ii): the recorder stops it,
-status "Left_Kalman_Box"), or when the stage converged above its start. The
-solver's last point is the answer when it converged and the point is exactly
+status "Left_Kalman_Box"), or when the stage converged above its start. A
+backend with ``rescue_stage`` (Uno: funnel-SQP) restarts from the start with
+those options when nothing safe was found below it. The solver's last point is the answer when it converged and the point is exactly
 safe (the lower one when both attempts converged); otherwise the best
 exactly safe recorded iterate is (the driver's rule).
 
@@ -165,14 +166,15 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
                  margin: float, regularisation: float, floor: float, candidates: int, cache: bool, start: Layout,
                  max_iter: int, restarts: int, stall: int, offset: int, bar: Any,
                  bounds: Callable | None = None, duals: tuple | None = None, scale: float = 1.0,
-                 prefix: int = 0) -> _Stage:
+                 prefix: int = 0, rescue: dict | None = None) -> _Stage:
     """The solver on one formulation from ``start``: attempts with restarts
     from the best exactly safe point (module doc), at most ``max_iter``
     iterations. ``bounds(nlp, point)`` -> (z0, lbz, ubz) replaces the NLP's
     own start and bounds; ``duals`` (lam_x, lam_g) are the first attempt's
     initial multipliers (a restart starts without them); ``scale`` != 1: the
     NLP with its means scaled (:mod:`.nlp_scaled`; the stage's ``duals`` are
-    then the unscaled NLP's)."""
+    then the unscaled NLP's); ``rescue``: the plug-in's options of a restart
+    from the start when nothing safe was found below it (``NLPBackend.rescue_stage``)."""
     if not backend.calls_back:
         # fatrop's limit m allows m + 1 iterations by its own count (measured)
         opts, restarts = {**opts, backend.limit_key: max(int(max_iter) - 1, 0)}, 0
@@ -249,15 +251,23 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
                 stage.best = cand[:3]
         if n_attempts > restarts or status == "time_limit" or stage.used >= max_iter or problem.stop_requested:
             break
+        how = ""
         if stage.best[1] is z_start or recorder.stop_reason == "left_box":
             # nothing safe below the start, or a runaway: again inside the box the
-            # Kalman equality implies (docs/numerics.md, "The Kalman box"); a stage
-            # that had it already, or an NLP without lifted Q, ends
-            if boxed or not can_box:
+            # Kalman equality implies (docs/numerics.md, "The Kalman box"), or with the
+            # plug-in's rescue options (Uno's funnel-SQP, "SQP baseline"); else the stage ends
+            if can_box and not boxed:
+                boxed, how = True, " inside the Kalman box"
+            elif rescue is not None and rescue != opts:
+                calls = recorder.offset + max(recorder.calls - 1, 0)
+                nlp, solver, recorder, _ = solver_of(problem.model, backend, rescue, formulation, margin,
+                                                     regularisation, floor, max(int(candidates), 0), cache, scale,
+                                                     prefix)
+                recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall)
+                recorder.offset, opts, rescue, how = calls, rescue, None, " with its rescue options"
+            else:
                 break
-            boxed = True
-        log.info("%s %s after %d iterations; restarting from %s%s", backend.name, raw, stage.used, stage.best[2],
-                 " inside the Kalman box" if boxed else "")
+        log.info("%s %s after %d iterations; restarting from %s%s", backend.name, raw, stage.used, stage.best[2], how)
         z_start = stage.best[1]
     if stage.answer is None and above is not None:
         stage.answer, stage.status = above
@@ -302,6 +312,8 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     bad = backend.check_options(opts)
     if bad:
         raise ValidationError("solver_options", bad)
+    rescue_opts = backend.options(problem.solver_options, problem.tol, backend.rescue_stage) \
+        if backend.rescue_stage and formulation == "logchol" else None
     # the plug-in's own limit is set out of reach (a constant keeps the cache
     # key stable); the recorder enforces the run's budget; a user's
     # "max_iter" solver option still caps it
@@ -339,6 +351,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
             if prefix and before is None:
                 prefix, key = 0, _base_key(problem.model, formulation, margin, regularisation)
             first = _solve_stage(problem, backend, _Stage(), formulation=formulation, floor=floor, opts=opts,
+                                 rescue=rescue_opts,
                                  start=problem.start, max_iter=max_iter - (before.used if before else 0),
                                  restarts=restarts, offset=problem.iterations, scale=scale_means, prefix=prefix,
                                  **common)
