@@ -162,9 +162,9 @@ def test_casadis_plugin_history_reads_the_iterates_own_rows(tiny_start):
 
 @pytest.mark.parametrize("interface", ["unopy", "casadi"])
 def test_an_infeasible_stationary_point_is_rescued_by_funnel_sqp(interface):
-    """cube3d at confidence 0.9 on the plan's own 5 steps: filter-SQP's first
-    attempt ended at an infeasible stationary point (3-6 iterations, session
-    19), and the warm start was returned. The restart from the start with
+    """cube3d at confidence 0.9 on the plan's own steps: filter-SQP's first
+    attempt ends at an infeasible stationary point within a few iterations
+    (session 19), and the warm start was returned. The restart from the start with
     Uno's funnel-SQP converges, verified, to IPOPT's optimum (a second
     solver), and the history runs on through both attempts."""
     if interface == "unopy" and not HAVE_UNOPY:

@@ -31,8 +31,9 @@ BACKENDS = ("auto", "numpy", "numba")
 #: radius_per_alpha under per-step noise unless given: one unsensed step costs
 #: alpha/2 log det(I + W P^-1) whatever its length (0.35 alpha at P = 2 W), so
 #: a fixed cap leaves no edge at alpha ~ 1 (tutorial, quad, cube3d: no path at
-#: alpha = 1 with 0; every built-in plans at 0.1, 0.5 and 1 with 1.2, the
-#: value paper-multi was tuned with)
+#: alpha = 1 with 0; the 2-D built-ins plan at 0.1, 0.5 and 1 with 1.2, the
+#: value paper-multi was tuned with; the cost sums over the d directions, and
+#: cube3d's file sets 2.4: docs/planner.md, "The cap in 3-D")
 PER_STEP_RADIUS_PER_ALPHA = 1.2
 
 
