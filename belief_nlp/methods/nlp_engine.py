@@ -36,9 +36,10 @@ there is no such point below the stage's start, when an iterate left the box
 tenfold (a lifted factor |M_ij| > 10 sqrt((W^-1)_ii): the recorder stops it,
 status "Left_Kalman_Box"), or when the stage converged above its start. A
 backend with ``rescue_stage`` (Uno: funnel-SQP) restarts from the start with
-those options when nothing safe was found below it. The solver's last point is the answer when it converged and the point is exactly
-safe (the lower one when both attempts converged); otherwise the best
-exactly safe recorded iterate is (the driver's rule).
+those options when nothing safe was found below it. The solver's last point
+is the answer when it converged and the point is exactly safe (the lower one
+when both attempts converged); otherwise the best exactly safe recorded
+iterate is (the driver's rule).
 
 History: one record per solver iteration (stages and restarts continue the
 numbering; IPOPT calls back once more than it counts when it enters its
@@ -259,10 +260,11 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
             if can_box and not boxed:
                 boxed, how = True, " inside the Kalman box"
             elif rescue is not None and rescue != opts:
-                calls = recorder.offset + max(recorder.calls - 1, 0)
+                calls, t_build = recorder.offset + max(recorder.calls - 1, 0), time.perf_counter()
                 nlp, solver, recorder, _ = solver_of(problem.model, backend, rescue, formulation, margin,
                                                      regularisation, floor, max(int(candidates), 0), cache, scale,
                                                      prefix)
+                stage.build_time += time.perf_counter() - t_build
                 recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall)
                 recorder.offset, opts, rescue, how = calls, rescue, None, " with its rescue options"
             else:
