@@ -17,7 +17,7 @@ pytestmark = pytest.mark.skipif(not available(), reason="this CasADi build has n
 
 def test_listed_when_casadi_ships_it():
     assert "fatrop" in bn.available_methods()
-    assert bn.get_method("fatrop").max_iter == 300
+    assert bn.get_method("fatrop").max_iter == 3000
 
 
 def test_converges_verified_with_raw_stats(small_start, ipopt_from):
