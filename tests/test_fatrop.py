@@ -65,3 +65,32 @@ def test_status_map():
     assert map_status("SOLVER_RET_LIMITED (flag 1)") == "max_iter"
     assert map_status("Maximum_WallTime_Exceeded") == "time_limit"
     assert map_status("SOLVER_RET_UNKNOWN (flag 4)") == "solver_failed"
+
+
+@pytest.fixture(scope="module")
+def failing_start():
+    """paper-multi seed 3 at K = 20: fatrop's first attempt ended solver_failed
+    after 174 iterations at alpha 1 (session 19)."""
+    sc = bn.load_scenario("paper-multi")
+    plan = bn.plan(sc, n_nodes=500, seed=3, noise="per_step")
+    return sc, bn.warm_start(sc, plan.path, K=20)
+
+
+def test_a_failed_first_stage_is_rescued_with_a_lower_first_barrier(failing_start):
+    """The restart from the start with mu_init 1e-3 converges, verified, near
+    IPOPT's optimum (a second solver); the attempts say what ran."""
+    sc, ws = failing_start
+    res = bn.smooth(sc, ws, method="fatrop", alpha=1.0)
+    assert res.status == "converged" and res.safe and bn.verify(sc, res.path).safe
+    ipo = bn.smooth(sc, ws, method="ipopt", alpha=1.0)
+    assert res.cost == pytest.approx(ipo.cost, rel=1e-2) and res.cost < res.initial_cost
+    first = [a["return_status"] for a in res.stats["attempts"] if a["formulation"] == "logchol"]
+    assert first[-1] == "Success"
+
+
+def test_the_rescue_keeps_the_runs_iteration_limit(failing_start):
+    """Its own limit is what the first attempt left of max_iter."""
+    sc, ws = failing_start
+    res = bn.smooth(sc, ws, method="fatrop", alpha=1.0, max_iter=200)
+    assert res.stats["iter_count"] <= 200 + 2      # fatrop's limit m allows m + 1 per solve
+    assert sum(a["iter_count"] for a in res.stats["attempts"]) == res.stats["iter_count"]

@@ -42,6 +42,12 @@ DEFAULT_FATROP_OPTIONS: dict[str, Any] = {
     "constr_viol_tol": 1e-8,
 }
 
+#: a first stage that failed restarts from its start with this first barrier
+#: parameter: on the issue-21 protocol the 12 of 80 runs that failed converged
+#: with it, the one that hung included (session 19; as every run's setting it took
+#: more iterations at K = 20 and failed 4 others)
+RESCUE_FATROP_OPTIONS: dict[str, Any] = {"mu_init": 1e-3}
+
 #: fatrop's print level that writes a line per iteration: the watchdog's
 #: heartbeat (:mod:`.nlp_guarded`); the user's ``print_level`` > 0 shows them
 _HEARTBEAT_LEVEL = 5
@@ -121,6 +127,8 @@ class FatropBackend(NLPBackend):
     """fatrop: the stage-ordered NLP, its structure, statuses and option check."""
 
     name = "fatrop"
+    stage_options = {"rescue": RESCUE_FATROP_OPTIONS}
+    rescue_stage = "rescue"
     plugin = "fatrop"
     defaults = DEFAULT_FATROP_OPTIONS
     calls_back = False          # the plug-in never calls CasADi's iteration_callback (measured)

@@ -35,8 +35,9 @@ Kalman-feasible point satisfies; docs/numerics.md, "The Kalman box") when
 there is no such point below the stage's start, when an iterate left the box
 tenfold (a lifted factor |M_ij| > 10 sqrt((W^-1)_ii): the recorder stops it,
 status "Left_Kalman_Box"), or when the stage converged above its start. A
-backend with ``rescue_stage`` (Uno: funnel-SQP) restarts from the start with
-those options when nothing safe was found below it. The solver's last point
+backend with ``rescue_stage`` (Uno: funnel-SQP; fatrop: mu_init 1e-3, its
+one restart) restarts from the start with those options when nothing safe
+was found below it. The solver's last point
 is the answer when it converged and the point is exactly safe (the lower one
 when both attempts converged); otherwise the best exactly safe recorded
 iterate is (the driver's rule).
@@ -177,8 +178,9 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
     then the unscaled NLP's); ``rescue``: the plug-in's options of a restart
     from the start when nothing safe was found below it (``NLPBackend.rescue_stage``)."""
     if not backend.calls_back:
-        # fatrop's limit m allows m + 1 iterations by its own count (measured)
-        opts, restarts = {**opts, backend.limit_key: max(int(max_iter) - 1, 0)}, 0
+        # fatrop's limit m allows m + 1 iterations by its own count (measured); no
+        # callback records a point to restart from: only its rescue restarts it
+        opts, restarts = {**opts, backend.limit_key: max(int(max_iter) - 1, 0)}, int(rescue is not None)
     t_build = time.perf_counter()
     nlp, solver, recorder, stage.build = solver_of(problem.model, backend, opts, formulation, margin, regularisation,
                                                    floor, max(int(candidates), 0), cache, scale, prefix)
@@ -259,8 +261,12 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
             # plug-in's rescue options (Uno's funnel-SQP, "SQP baseline"); else the stage ends
             if can_box and not boxed:
                 boxed, how = True, " inside the Kalman box"
-            elif rescue is not None and rescue != opts:
-                calls, t_build = recorder.offset + max(recorder.calls - 1, 0), time.perf_counter()
+            elif rescue is not None and rescue != opts and (backend.calls_back or max_iter - stage.used >= 2):
+                if not backend.calls_back:        # its own limit: what is left of the stage's
+                    rescue = {**rescue, backend.limit_key: max_iter - stage.used - 1}
+                # numbered on from the last record (a solve without callbacks is one record)
+                calls = recorder.rows[-1][0] if recorder.rows else recorder.offset
+                t_build = time.perf_counter()
                 nlp, solver, recorder, _ = solver_of(problem.model, backend, rescue, formulation, margin,
                                                      regularisation, floor, max(int(candidates), 0), cache, scale,
                                                      prefix)
