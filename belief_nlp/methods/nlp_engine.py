@@ -254,27 +254,28 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
                 stage.best = cand[:3]
         if n_attempts > restarts or status == "time_limit" or stage.used >= max_iter or problem.stop_requested:
             break
-        how = ""
+        how, new_opts = "", None
         if stage.best[1] is z_start or recorder.stop_reason == "left_box":
-            # nothing safe below the start, or a runaway: again inside the box the
-            # Kalman equality implies (docs/numerics.md, "The Kalman box"), or with the
-            # plug-in's rescue options (Uno's funnel-SQP, "SQP baseline"); else the stage ends
+            # nothing safe below the start, or a runaway: again inside the Kalman box (docs/numerics.md,
+            # "The Kalman box"), or with the plug-in's rescue options; else the stage ends
             if can_box and not boxed:
                 boxed, how = True, " inside the Kalman box"
-            elif rescue is not None and rescue != opts and (backend.calls_back or max_iter - stage.used >= 2):
-                if not backend.calls_back:        # its own limit: what is left of the stage's
-                    rescue = {**rescue, backend.limit_key: max_iter - stage.used - 1}
-                # numbered on from the last record (a solve without callbacks is one record)
-                calls = recorder.rows[-1][0] if recorder.rows else recorder.offset
-                t_build = time.perf_counter()
-                nlp, solver, recorder, _ = solver_of(problem.model, backend, rescue, formulation, margin,
-                                                     regularisation, floor, max(int(candidates), 0), cache, scale,
-                                                     prefix)
-                stage.build_time += time.perf_counter() - t_build
-                recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall)
-                recorder.offset, opts, rescue, how = calls, rescue, None, " with its rescue options"
+            elif rescue is not None and rescue != opts:
+                new_opts, rescue, how = rescue, None, " with its rescue options"
             else:
                 break
+        if not backend.calls_back:           # its own limit: what is left of the stage's
+            if max_iter - stage.used < 2:
+                break
+            new_opts = {**(new_opts or opts), backend.limit_key: max_iter - stage.used - 1}
+        if new_opts is not None:             # another solver; numbered on from the last record
+            opts = new_opts
+            calls, t_build = (recorder.rows[-1][0] if recorder.rows else recorder.offset), time.perf_counter()
+            nlp, solver, recorder, _ = solver_of(problem.model, backend, opts, formulation, margin, regularisation,
+                                                 floor, max(int(candidates), 0), cache, scale, prefix)
+            stage.build_time += time.perf_counter() - t_build
+            recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall)
+            recorder.offset = calls
         log.info("%s %s after %d iterations; restarting from %s%s", backend.name, raw, stage.used, stage.best[2], how)
         z_start = stage.best[1]
     if stage.answer is None and above is not None:
