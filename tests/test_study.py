@@ -235,3 +235,22 @@ def test_report_and_cli(tiny_toml, pool_dir, tmp_path, capsys):
     assert main(["study", "report", str(tmp_path / "nothing")]) == 2
     assert main(["study", "list"]) == 0
     assert "thesis" in capsys.readouterr().out
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_a_case_timeout_swallowed_in_a_destructor_still_ends_the_case():
+    """Python prints and drops an exception raised inside a destructor or a
+    weakref callback; a case timeout that lands there (seen in CI: WeakSet._remove)
+    must still end the case."""
+    import time
+
+    from belief_nlp.study.runner import CaseTimeout, _deadline
+
+    class Slow:
+        def __del__(self):
+            time.sleep(0.05)          # the alarm fires in here and is swallowed
+
+    with pytest.raises(CaseTimeout, match="case_timeout of 0.01 s"):
+        with _deadline(0.01):
+            obj = Slow()
+            del obj                   # then the case would end normally
