@@ -48,7 +48,7 @@ from typing import Any
 
 from ..errors import ValidationError
 from ..smoother.context import Outcome, SmoothingProblem
-from ..smoother.registry import Method, Option, register
+from ..smoother.registry import Method, Option, count, register
 from . import ccp, ipopt
 
 __all__ = ["run", "FIRST_STAGE", "POLISH"]
@@ -169,10 +169,6 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
                        state)
 
 
-def _count(v: Any) -> str | None:
-    return None if isinstance(v, int) and not isinstance(v, bool) and v >= 0 else "must be an integer >= 0"
-
-
 def _check_first_stage_options(v: Any) -> str | None:
     """``ipopt_options``: the first stage's method options, checked as that method checks them."""
     if v is None:
@@ -193,17 +189,17 @@ METHOD = register(Method(
          f"got {s!r}",
     description="IPOPT on the exact NLP; CCP from the best safe point when IPOPT's answer is not taken",
     iteration="one IPOPT iteration or one CCP step",
-    options={"ccp_reserve": Option(50, "iterations of the budget kept for the CCP fallback", _count),
+    options={"ccp_reserve": Option(50, "iterations of the budget kept for the CCP fallback", count),
              "ccp_polish": Option(None, "CCP steps tried after a converged IPOPT answer, kept only if lower "
                                    f"(None: {POLISH} without a risk budget, 0 under one or after a resumed "
                                    "IPOPT stage whose exact polish answered)",
-                                   lambda v: None if v is None else _count(v)),
+                                   lambda v: None if v is None else count(v)),
              "ccp_solver": Option("CLARABEL", "conic solver of the CCP stage", ccp._check_solver),
              "ccp_solver_options": Option(None, "solver options of the CCP stage (solver_options go to IPOPT)",
                                           lambda v: None if v is None or isinstance(v, dict) else "must be a dict"),
              "ipopt_retry": Option(IPOPT_RETRY, "re-plans (bn.replan) after an answer CCP gave because IPOPT's "
                                                 "was not taken that run CCP alone from the warm start, before "
-                                                "IPOPT is tried again (0: IPOPT every time)", _count),
+                                                "IPOPT is tried again (0: IPOPT every time)", count),
              "ipopt_options": Option(None, "method options of the IPOPT stage, e.g. {'floor': 5e-3} (those of "
                                            "method 'ipopt'; solver_options are IPOPT's own)",
                                      _check_first_stage_options),

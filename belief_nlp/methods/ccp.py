@@ -51,7 +51,7 @@ from .ccp_steps import CHI2_MARGIN, compiled_step, conic_step_of, frozen_step
 from .ccp_cascade import (SOLVER_DEFAULTS, LazyCascade, _check_solver, _check_solver_options, _checked, _solve,
                           _StepAnswers, solver_cascade)
 from ..smoother.context import Outcome, SmoothingProblem
-from ..smoother.registry import Method, Option, register
+from ..smoother.registry import Method, Option, nonneg, register
 from ..smoother.result import STATUSES, IterationRecord
 
 __all__ = ["run", "compiled_step", "solver_cascade", "usable_solvers", "initial_rho", "SOLVER_DEFAULTS",
@@ -411,10 +411,6 @@ def _positive(v: Any) -> str | None:
     return None if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 else "must be a number > 0"
 
 
-def _nonneg(v: Any) -> str | None:
-    return None if isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0 else "must be a number >= 0"
-
-
 def _callable_or_none(v: Any) -> str | None:
     return None if v is None or callable(v) else "must be None or a callable"
 
@@ -431,7 +427,7 @@ METHOD = register(Method(
     description="convex-concave procedure (paper IV.A): monotone, every iterate exactly safe",
     iteration="one convex (SDP) step",
     options={
-        "monotone_tol": Option(1e-7, "relative cost increase that ends the run (non_monotone)", _nonneg),
+        "monotone_tol": Option(1e-7, "relative cost increase that ends the run (non_monotone)", nonneg),
         "rho": Option(None, "fixed split weight of h2 (None: adapted per pair)",
                       lambda v: None if v is None else _positive(v)),
         "cache_dir": Option(None, "disk cache of compiled problems: None (the process's: set_disk_cache, "

@@ -128,7 +128,6 @@ class FatropBackend(NLPBackend):
 
     name = "fatrop"
     stage_options = {"rescue": RESCUE_FATROP_OPTIONS}
-    rescue_stage = "rescue"
     plugin = "fatrop"
     defaults = DEFAULT_FATROP_OPTIONS
     calls_back = False          # the plug-in never calls CasADi's iteration_callback (measured)

@@ -31,7 +31,10 @@ class NLPBackend:
     plugin = ""
 
     #: the plug-in's options unless the user's override them; per stage
-    #: ("logchol", "cholesky", "polish") changes on top of them
+    #: ("logchol", "cholesky", "polish") changes on top of them. A "rescue" entry:
+    #: a first-stage restart from the start with those changes after an attempt
+    #: found nothing safe below it (Uno: funnel-SQP; fatrop: mu_init 1e-3;
+    #: docs/numerics.md, "SQP baseline", "fatrop")
     defaults: dict = {}
     stage_options: dict = {}
     #: names of the plug-in's own iteration limit and tolerance options
@@ -58,10 +61,6 @@ class NLPBackend:
     #: an iterate ten times outside it ends an attempt (measured for IPOPT only:
     #: docs/numerics.md, "The Kalman box")
     kalman_box = False
-    #: the ``stage_options`` key of a first-stage restart from the start after an
-    #: attempt found nothing safe below it (None: no such restart). Uno: funnel-SQP
-    #: after filter-SQP's infeasible stationary points (docs/numerics.md, "SQP baseline")
-    rescue_stage: str | None = None
 
     def options(self, solver_options: dict, tol: float, stage: str) -> dict:
         """The plug-in's options for ``stage``, the user's ``solver_options``

@@ -35,12 +35,12 @@ Kalman-feasible point satisfies; docs/numerics.md, "The Kalman box") when
 there is no such point below the stage's start, when an iterate left the box
 tenfold (a lifted factor |M_ij| > 10 sqrt((W^-1)_ii): the recorder stops it,
 status "Left_Kalman_Box"), or when the stage converged above its start. A
-backend with ``rescue_stage`` (Uno: funnel-SQP; fatrop: mu_init 1e-3, its
-one restart) restarts from the start with those options when nothing safe
-was found below it. The solver's last point
-is the answer when it converged and the point is exactly safe (the lower one
-when both attempts converged); otherwise the best exactly safe recorded
-iterate is (the driver's rule).
+backend with ``stage_options["rescue"]`` (Uno: funnel-SQP; fatrop: mu_init
+1e-3, its one restart) restarts from the start with those options when
+nothing safe was found below it. The solver's last point is the answer when
+it converged and the point is exactly safe (the lower one when both attempts
+converged); otherwise the best exactly safe recorded iterate is (the
+driver's rule).
 
 History: one record per solver iteration (stages and restarts continue the
 numbering; IPOPT calls back once more than it counts when it enters its
@@ -176,7 +176,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
     initial multipliers (a restart starts without them); ``scale`` != 1: the
     NLP with its means scaled (:mod:`.nlp_scaled`; the stage's ``duals`` are
     then the unscaled NLP's); ``rescue``: the plug-in's options of a restart
-    from the start when nothing safe was found below it (``NLPBackend.rescue_stage``)."""
+    from the start when nothing safe was found below it (``stage_options["rescue"]``)."""
     if not backend.calls_back:
         # fatrop's limit m allows m + 1 iterations by its own count (measured); no
         # callback records a point to restart from: only its rescue restarts it
@@ -321,8 +321,8 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     bad = backend.check_options(opts)
     if bad:
         raise ValidationError("solver_options", bad)
-    rescue_opts = backend.options(problem.solver_options, problem.tol, backend.rescue_stage) \
-        if backend.rescue_stage and formulation == "logchol" else None
+    rescue_opts = backend.options(problem.solver_options, problem.tol, "rescue") \
+        if "rescue" in backend.stage_options and formulation == "logchol" else None
     # the plug-in's own limit is set out of reach (a constant keeps the cache
     # key stable); the recorder enforces the run's budget; a user's
     # "max_iter" solver option still caps it

@@ -3,11 +3,9 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 from ..model.nlp_form import FORMULATIONS
 from ..smoother.policy import DEFAULT_POLICY
-from ..smoother.registry import Option
+from ..smoother.registry import Option, count, nonneg
 from . import nlp_resume
 
 __all__ = ["nlp_options", "POLISH_RETRY"]
@@ -20,14 +18,6 @@ __all__ = ["nlp_options", "POLISH_RETRY"]
 POLISH_RETRY = 4
 
 
-def _nonneg(v: Any) -> str | None:
-    return None if isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0 else "must be a number >= 0"
-
-
-def _count(v: Any) -> str | None:
-    return None if isinstance(v, int) and not isinstance(v, bool) and v >= 0 else "must be an integer >= 0"
-
-
 def nlp_options(solver: str) -> dict[str, Option]:
     """The options every NLP method takes (the keywords of :func:`run_nlp`)."""
     return {
@@ -36,18 +26,18 @@ def nlp_options(solver: str) -> dict[str, Option]:
         "floor": Option(1e-2, "smallest diagonal entry of L in the 'logchol' stage (scaled units)",
                         lambda v: None if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0
                         else "must be a number > 0"),
-        "polish": Option(50, "iteration cap of the polish after the 'logchol' stage (0: none)", _count),
-        "regularisation": Option(1e-4, "weight of the certificates' proximal term", _nonneg),
-        "margin": Option(DEFAULT_POLICY.nlp, "relative clearance margin kept in the NLP's collision rows", _nonneg),
+        "polish": Option(50, "iteration cap of the polish after the 'logchol' stage (0: none)", count),
+        "regularisation": Option(1e-4, "weight of the certificates' proximal term", nonneg),
+        "margin": Option(DEFAULT_POLICY.nlp, "relative clearance margin kept in the NLP's collision rows", nonneg),
         "restarts": Option(1, "restarts after an unconverged stop: from the best safe point, or inside the "
-                              "Kalman box (docs/numerics.md)", _count),
-        "stall": Option(300, "iterations without a lower feasible cost that end an attempt", _count),
-        "candidates": Option(5, "feasible iterates kept as fallback candidates", _count),
+                              "Kalman box (docs/numerics.md)", count),
+        "stall": Option(300, "iterations without a lower feasible cost that end an attempt", count),
+        "candidates": Option(5, "feasible iterates kept as fallback candidates", count),
         "cache": Option(True, f"reuse the NLP and {solver} instance of an earlier call with the same model",
                         lambda v: None if isinstance(v, bool) else "must be True or False"),
         "polish_retry": Option(POLISH_RETRY, "re-plans (with resume) that skip the polish after one whose polish "
                                              "did not lower its answer, while the first stage's answer is below "
-                                             "the warm start (0: never skip)", _count),
+                                             "the warm start (0: never skip)", count),
         "resume": Option(None, "an earlier answer's first-stage state (SmoothResult.resume) to start that stage "
                                "from, on the same scenario and K (bn.replan passes it; used by solvers that take "
                                "initial multipliers: IPOPT)", nlp_resume.check),

@@ -62,7 +62,6 @@ class UnoBackend(NLPBackend):
 
     defaults = DEFAULT_UNO_OPTIONS
     stage_options = {"polish": POLISH_UNO_OPTIONS, "rescue": POLISH_UNO_OPTIONS}
-    rescue_stage = "rescue"
     limit_key = "max_iterations"
     tol_key = "tolerance"
 

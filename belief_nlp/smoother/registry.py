@@ -20,13 +20,23 @@ from typing import Any, Callable
 from ..errors import ValidationError
 
 __all__ = ["DEFAULT_METHOD", "Option", "Method", "register", "available_methods", "available_solvers", "get_method",
-           "resolve_method"]
+           "resolve_method", "count", "nonneg"]
 
 # CasADi nlpsol plug-ins a method may run (the ones CasADi's wheels can ship)
 _NLP_SOLVERS = ("ipopt", "fatrop", "uno", "madnlp", "sqpmethod", "blocksqp", "knitro", "snopt", "worhp", "bonmin")
 
 #: The method used when none is named (``smooth``, the CLI's ``--method``, the demo).
 DEFAULT_METHOD = "auto"
+
+
+def count(v: Any) -> str | None:
+    """An :class:`Option` check: an integer >= 0 (not a bool)."""
+    return None if isinstance(v, int) and not isinstance(v, bool) and v >= 0 else "must be an integer >= 0"
+
+
+def nonneg(v: Any) -> str | None:
+    """An :class:`Option` check: a number >= 0 (not a bool)."""
+    return None if isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0 else "must be a number >= 0"
 
 
 @dataclass(frozen=True)
