@@ -81,8 +81,9 @@ class CpuTimers:
         return timed
 
     def _wrap_solver(self, eng):
-        """The IPOPT calls: the solver object's ``__call__`` inside ``_solve_stage``."""
-        solver_fn = eng._solver
+        """The IPOPT calls: the solver object's ``__call__`` inside ``_solve_stage``
+        (the solver comes from ``solver_of``, as the engine imported it)."""
+        solver_fn = eng.solver_of
         timers = self
 
         class Timed:
@@ -103,7 +104,7 @@ class CpuTimers:
         def wrapped(*a, **k):
             nlp, solver, recorder, build = solver_fn(*a, **k)
             return nlp, Timed(solver), recorder, build
-        eng._solver = wrapped
+        eng.solver_of = wrapped
 
 
 def run(seeds: int, Ks: tuple[int, ...], profile: str | None) -> dict:

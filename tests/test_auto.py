@@ -21,8 +21,8 @@ def test_a_converged_ipopt_answer_is_taken(small):
     ref = bn.smooth(sc, path, method="ipopt", alpha=1.0)
     assert res.cost == pytest.approx(ref.cost, rel=1e-9)
     assert res.stats["stages"] == ["ipopt"]
-    # the default polishes IPOPT's answer: never above it, the stages say so
-    polished = bn.smooth(sc, path, method="auto", alpha=1.0)
+    # a CCP polish of IPOPT's answer: never above it, the stages say so
+    polished = bn.smooth(sc, path, method="auto", alpha=1.0, ccp_polish=10)
     assert polished.method == "auto:ipopt+ccp" and polished.stats["stages"] == ["ipopt", "ccp polish"]
     assert polished.cost <= ref.cost * (1 + 1e-12) and polished.safe
 
@@ -74,7 +74,7 @@ def test_a_polish_step_clarabel_cannot_answer_ends_the_polish():
     one step; the polish now ends there and IPOPT's answer stands."""
     sc = bn.load_scenario("paper-multi")
     planned = bn.plan(sc, n_nodes=300, seed=0, noise="per_step", alpha=0.1)
-    res = bn.smooth(sc, planned, method="auto", alpha=1e-6)
+    res = bn.smooth(sc, planned, method="auto", alpha=1e-6, ccp_polish=10)
     ipo = bn.smooth(sc, planned, method="ipopt", alpha=1e-6)
     assert res.method == "auto:ipopt+ccp" and res.status == "converged" and res.safe
     assert res.cost <= ipo.cost * (1 + 1e-12)

@@ -275,7 +275,8 @@ def test_autos_ccp_polish_in_a_receding_replan_uses_the_frozen_step(plan10):
     from belief_nlp.model.cache import MEMORY
 
     sc, previous = plan10
-    first = bn.smooth(sc, previous.path, method="auto", alpha=1.0)
+    # polished (its conic step built), whether or not the answer is stationary in S
+    first = bn.smooth(sc, previous.path, method="auto", alpha=1.0, ccp_polish=10)
     moved = _moved(sc, first, 1, np.random.default_rng(3))
     r = bn.replan(moved, first, advance=1, alpha=1.0, ccp_polish=10)     # (the default skips it here: below)
     assert r.stats["ipopt"]["resumed"] == "yes" and r.stats["ccp"]["frozen"] == 1
@@ -318,9 +319,9 @@ def test_autos_default_skips_the_ccp_polish_after_a_resumed_polish(plan10):
     """By default auto's CCP polish does not run after an IPOPT stage that
     resumed and ended on its converged exact polish (a loop's re-plan: the
     polish changed the cost by at most 1.4e-5 there); the answer is IPOPT's,
-    verified, within 1e-4 of the polished one. A first call still polishes."""
+    verified, within 1e-4 of the polished one."""
     sc, previous = plan10
-    first = bn.smooth(sc, previous.path, method="auto", alpha=1.0)
+    first = bn.smooth(sc, previous.path, method="auto", alpha=1.0, ccp_polish=10)
     assert first.stats["stages"] == ["ipopt", "ccp polish"]
     moved = _moved(sc, first, 1, np.random.default_rng(3))
     r = bn.replan(moved, first, advance=1, alpha=1.0)
@@ -397,7 +398,8 @@ def test_a_receding_replan_in_three_dimensions():
     ref = bn.replan(now, dataclasses.replace(previous, resume=None), advance=1, **KW)
     assert r.stats["resumed"] == "yes" and r.nit < ref.nit
     assert r.cost == pytest.approx(ref.cost, rel=1e-6) and bn.verify(now, r.path).safe
-    auto = bn.replan(now, bn.smooth(sc, plan.path, K=10, alpha=1.0), advance=1, alpha=1.0, ccp_polish=10)
+    auto = bn.replan(now, bn.smooth(sc, plan.path, K=10, alpha=1.0, ccp_polish=10), advance=1, alpha=1.0,
+                     ccp_polish=10)
     assert auto.stats["ipopt"]["resumed"] == "yes" and auto.stats["ccp"]["frozen"] == 1
     assert bn.verify(now, auto.path).safe and auto.cost <= auto.initial_cost
 

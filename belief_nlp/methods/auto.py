@@ -11,7 +11,13 @@ if they lower the cost: CCP sometimes finds a lower local optimum. Measured
 (benchmarks/bench_ccp.py --methods auto,auto+polish -> results/ccp_polish.json,
 60 cases): the median cost falls (ratio 0.999999 at K = 20, 0.99991 at K = 40;
 8 of 20 K = 40 cases lower by more than 0.1 %, at most 0.70 %) for +2.5 % and
-+5 % median wall, so it is on by default (``ccp_polish=0`` turns it off).
++5 % median wall, so it is on by default (``ccp_polish=0`` turns it off),
+except after an IPOPT answer from a converged exact polish that is
+stationary for the sensing it switched off (:mod:`.nlp_stationary`): a CCP
+step from such a point returns it. On the issue-21 protocol that skips the
+polish in 31 of 40 runs at K = 20 and 30 of 40 at K = 40, which it had
+lowered by at most 3.6e-5 relative (docs/numerics.md, "Skipping the CCP
+polish at a stationary answer").
 Under a risk budget the default is no polish: the budgeted CCP step has no
 active-set form and costs ~10x more (notebook 06: 2.1 s -> 7.5 s for a
 0.03 % lower cost). Nor after a re-plan whose IPOPT stage resumed from an
@@ -138,8 +144,8 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
     stats: dict[str, Any] = {"ipopt": first.stats, "stages": ["ipopt"]}
     # after executed steps (a re-plan) CCP solves the conic step of the state's longer horizon, frozen alike
     prefix = int((first_options.get("resume") or {}).get("offset", 0))
-    if polish_default and _resumed_polished(first):
-        ccp_polish = 0
+    if polish_default and (_resumed_polished(first) or first.stats.get("sensing_stationary")):
+        ccp_polish = 0           # a CCP step from a point stationary in S returns it (module doc)
     if first.status == "converged" and first.point is not None:
         chk = problem.check(first.point)
         if chk.safe and problem.model.cost(chk.point)[0] <= problem.cost0:
@@ -191,8 +197,9 @@ METHOD = register(Method(
     iteration="one IPOPT iteration or one CCP step",
     options={"ccp_reserve": Option(50, "iterations of the budget kept for the CCP fallback", count),
              "ccp_polish": Option(None, "CCP steps tried after a converged IPOPT answer, kept only if lower "
-                                   f"(None: {POLISH} without a risk budget, 0 under one or after a resumed "
-                                   "IPOPT stage whose exact polish answered)",
+                                   f"(None: {POLISH} without a risk budget, 0 under one, after a resumed "
+                                   "IPOPT stage whose exact polish answered, or at an answer stationary "
+                                   "for its switched-off sensing)",
                                    lambda v: None if v is None else count(v)),
              "ccp_solver": Option("CLARABEL", "conic solver of the CCP stage", ccp._check_solver),
              "ccp_solver_options": Option(None, "solver options of the CCP stage (solver_options go to IPOPT)",

@@ -19,22 +19,17 @@ Stages (docs/numerics.md, "IPOPT iterations"):
    stage 1's when it converged, is exactly safe and is not costlier.
 
 A re-plan with the option ``resume`` (:mod:`.nlp_resume`) first resumes
-the polish alone from the earlier polish's answer and multipliers, when that
-answer was the run's (its switched-off sensing stays off: a loop's re-plan
-keeps the sensing pattern while this converges); when it does not end
-converged and exactly safe, the first stage resumes from its own earlier
-state and the polish follows; when that fails too, the usual first stage
-runs from the warm start.
+the earlier polish alone (when its answer was the run's), then the first
+stage from its own earlier state, then the usual first stage.
 
 When a stage stops without converging (iteration share, solver failure, a
 stall of ``stall`` iterations without a lower feasible cost), the solver is
 restarted from the best exactly safe point so far. For a backend with
 ``kalman_box`` (IPOPT) the restart runs inside the Kalman box
-(:meth:`~belief_nlp.model.nlp_form.NLPProblem.kalman_box`: bounds every
-Kalman-feasible point satisfies; docs/numerics.md, "The Kalman box") when
-there is no such point below the stage's start, when an iterate left the box
-tenfold (a lifted factor |M_ij| > 10 sqrt((W^-1)_ii): the recorder stops it,
-status "Left_Kalman_Box"), or when the stage converged above its start. A
+(:meth:`~belief_nlp.model.nlp_form.NLPProblem.kalman_box`; docs/numerics.md,
+"The Kalman box") when there is no such point below the stage's start, when
+an iterate left the box tenfold (status "Left_Kalman_Box"), or when the
+stage converged above its start. A
 backend with ``stage_options["rescue"]`` (Uno: funnel-SQP; fatrop: mu_init
 1e-3, its one restart) restarts from the start with those options when
 nothing safe was found below it. The solver's last point is the answer when
@@ -56,7 +51,9 @@ not fit" when it cannot be used here: another graph, plug-in, floor,
 formulation or ``scale_means``; "no" without it), ``resumed_stage``
 ("polish" or "first": which resumed stage answered; None otherwise),
 ``polish_skipped`` (a re-plan after one whose polish did not lower its
-answer skips it, ``polish_retry`` times: :data:`POLISH_RETRY`).
+answer skips it, ``polish_retry`` times: :data:`POLISH_RETRY`),
+``sensing_stationary`` (the polish's answer is stationary for the sensing
+it switched off, :mod:`.nlp_stationary`; None when no polish answered).
 """
 
 from __future__ import annotations
@@ -81,6 +78,7 @@ from ..model.nlp_prefix import longer
 from .nlp_build import _CACHE, _GRAPHS, _base_key, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
 from .nlp_options import POLISH_RETRY, nlp_options  # noqa: F401 - nlp_options: re-exported
 from .nlp_recorder import Recorder
+from .nlp_stationary import sensing_stationary
 
 __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
 
@@ -152,6 +150,7 @@ class _Stage:
     limit: int = 0                       # the stage's iteration limit
     duals: tuple | None = None           # (lam_x, lam_g) of the answer's solve (backends with warm_duals)
     z: np.ndarray | None = None          # the variables of that solve (with duals)
+    solved: tuple | None = None          # (nlp, solver, p) of that solve
 
 
 #: iterations per step a first stage resumed from an earlier answer may take
@@ -220,7 +219,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
             if backend.warm_duals and sol is not None:
                 stage.duals = (np.asarray(sol["lam_x"]).ravel() / nlp.info.get("variable_scale", 1.0),
                                np.asarray(sol["lam_g"]).ravel())
-                stage.z = z_end
+                stage.z, stage.solved = z_end, (nlp, solver, pv)
             if not backend.calls_back and sol is not None:
                 recorder.solved(z_end, np.asarray(sol["g"]).ravel(), float(np.asarray(sol["f"]).flat[0]), st)
         except RuntimeError as exc:   # CasADi raises on some solver exceptions
@@ -396,11 +395,14 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     if skipped:
         out.message += f"; polish skipped (a recent re-plan's did not lower its answer; {skip - 1} more skips)"
     out.stats["polish_skipped"] = skipped
+    pol = first if first is direct else stages[1] if len(stages) > 1 else None
+    answered = pol is not None and pol.answer is not None and out.point is pol.answer[1]
+    # stationary in S as well (nlp_stationary): auto's CCP polish could not lower it
+    out.stats["sensing_stationary"] = sensing_stationary(*pol.solved[:2], pol.z, pol.solved[2], pol.duals[1]) \
+        if answered and pol.solved is not None else None
     if key and first.answer is not None and first.duals is not None:
         # the polish's state when its answer is the run's (a later re-plan resumes it alone)
-        pol_stage = first if first is direct else stages[1] if len(stages) > 1 else None
-        answered = pol_stage is not None and pol_stage.answer is not None and out.point is pol_stage.answer[1]
-        pol = (pol_stage.z, pol_stage.duals) if answered else None
+        pol = (pol.z, pol.duals) if answered else None
         if len(stages) > 1:              # a polish that did not lower stage 1's answer: skipped next time
             skip_next = 0 if out.point is not first.answer[1] else int(polish_retry)
         else:

@@ -1,0 +1,116 @@
+"""Stationarity of a polished answer for its switched-off sensing
+(methods/nlp_stationary.py), and auto's CCP polish skipped after one."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import belief_nlp as bn
+import belief_nlp.methods.nlp_engine as engine
+from belief_nlp.methods import nlp_stationary
+
+
+def _captured(monkeypatch, sc, ws, **kw):
+    """auto's result and the arguments of its stationarity test."""
+    seen = []
+
+    def spy(*args):
+        seen.append(args)
+        return nlp_stationary.sensing_stationary(*args)
+
+    monkeypatch.setattr(engine, "sensing_stationary", spy)
+    res = bn.smooth(sc, ws, **kw)
+    return res, seen[-1]
+
+
+def _blocks(nlp, z):
+    """(step, column, entries) of every column the test counts as off."""
+    tri, d, K, off = nlp.info["tri"], nlp.info["d"], nlp.info["K"], nlp.info["sensing_offset"]
+    t = len(tri)
+    out = []
+    for k in range(K):
+        for j in range(d):
+            ent = np.array([i for i, (_, c) in enumerate(tri) if c == j])
+            if np.linalg.norm(z[off + k * t + ent]) <= nlp_stationary.OFF:
+                out.append((k, j, off + k * t + ent))
+    return out
+
+
+def _check_blocks_by_function_values(nlp, solver, z, p, lam_g):
+    """Each block's eigenvalues against the Lagrangian's second differences
+    (f + lam_g^T g by function values alone, no Hessian) along its
+    eigenvectors; returns the smallest eigenvalue."""
+    H = solver.get_function("nlp_hess_l")(z, p, 1.0, lam_g).sparse().tocsr()
+    f_g = nlp.fg
+
+    def lag(zv):
+        f, g = f_g(zv, p)
+        return float(f) + float(np.dot(np.asarray(g).ravel(), lam_g))
+
+    base, eps, worst = lag(z), 1e-4, np.inf
+    blocks = _blocks(nlp, z)
+    assert blocks
+    for _, _, idx in blocks:
+        B = H[idx][:, idx].toarray()
+        w, V = np.linalg.eigh(B + B.T - np.diag(np.diag(B)))
+        for lam, u in zip(w, V.T):
+            zp, zm = z.copy(), z.copy()
+            zp[idx] += eps * u
+            zm[idx] -= eps * u
+            fd = (lag(zp) - 2 * base + lag(zm)) / eps ** 2
+            assert fd == pytest.approx(lam, rel=1e-3, abs=1e-5)
+        worst = min(worst, w[0])
+    return worst
+
+
+@pytest.fixture(scope="module")
+def pm20():
+    sc = bn.load_scenario("paper-multi")
+    return sc, bn.warm_start(sc, bn.plan(sc, n_nodes=500, seed=0, noise="per_step").path, K=20)
+
+
+def test_the_blocks_are_the_lagrangians_curvature_by_function_values(pm20, monkeypatch):
+    """Every block the test reads equals the second difference of the
+    Lagrangian (function values alone) along its eigenvectors, and the
+    verdict is the sign of the smallest: at alpha = 1 a negative one
+    (sensing would lower the cost), at alpha = 0.1 none."""
+    sc, ws = pm20
+    verdicts = {}
+    for alpha in (0.1, 1.0):
+        res, args = _captured(monkeypatch, sc, ws, alpha=alpha)
+        worst = _check_blocks_by_function_values(*args)
+        verdicts[alpha] = res.stats["ipopt"]["sensing_stationary"]
+        assert verdicts[alpha] == (worst >= 0.0)
+    assert verdicts == {0.1: True, 1.0: False}
+
+
+def test_a_ccp_polish_cannot_lower_a_stationary_answer_and_auto_skips_it(pm20):
+    """At an answer stationary in S the CCP polish returns it (to the
+    polish's tolerance): auto's default answers with IPOPT's point, and the
+    explicit polish lowers it by less than 1e-5. At a non-stationary one the
+    default polishes and gains what the explicit polish gains."""
+    sc, ws = pm20
+    res = bn.smooth(sc, ws, alpha=0.1)
+    assert res.stats["ipopt"]["sensing_stationary"] is True
+    assert res.method == "auto:ipopt" and res.stats["stages"] == ["ipopt"] and bn.verify(sc, res.path).safe
+    polished = bn.smooth(sc, ws, alpha=0.1, ccp_polish=10)
+    assert res.cost * (1 - 1e-5) <= polished.cost <= res.cost
+    moved = bn.smooth(sc, ws, alpha=1.0)
+    assert moved.stats["ipopt"]["sensing_stationary"] is False
+    assert moved.method == "auto:ipopt+ccp" and bn.verify(sc, moved.path).safe
+    plain = bn.smooth(sc, ws, alpha=1.0, ccp_polish=0)
+    assert moved.cost < plain.cost * (1 - 1e-5)           # it senses where IPOPT's polish had switched off
+
+
+def test_three_dimensions_and_methods_without_a_polish(monkeypatch):
+    """cube3d (d = 3, columns of one step can be on and off): the blocks
+    are the Lagrangian's curvature there too; a run without the polish
+    reports None (nothing is claimed)."""
+    sc = bn.load_scenario("cube3d")
+    ws = next(w for w in (bn.plan(sc, n_nodes=300, seed=s, noise="per_step") for s in range(4)) if w.success)
+    res, args = _captured(monkeypatch, sc, ws.path, K=10, alpha=1.0)
+    worst = _check_blocks_by_function_values(*args)
+    assert res.stats["ipopt"]["sensing_stationary"] == (worst >= 0.0)
+    none = bn.smooth(sc, ws.path, K=10, alpha=1.0, method="ipopt", polish=0)
+    assert none.stats["sensing_stationary"] is None
