@@ -58,22 +58,24 @@ def sensing_stationary(nlp: NLPProblem, solver: Any, z: np.ndarray, p: np.ndarra
     t = len(tri)
     L = np.zeros((K, d, d))
     L[:, [r for r, _ in tri], [c for _, c in tri]] = np.asarray(z, float)[off:off + K * t].reshape(K, t)
-    col_entries = [np.array([i for i, (_, c) in enumerate(tri) if c == j]) for j in range(d)]
-    H = None
-    for k in range(K):
-        zero = np.linalg.norm(L[k], axis=0) <= OFF             # switched-off columns of L_k
-        if not zero.any():
-            continue
-        on = L[k][:, ~zero]
-        spans = False
-        for j in np.flatnonzero(zero):
-            if H is None:
-                H = hess(z, p, 1.0, np.asarray(lam_g, float)).sparse().tocsr()      # upper triangle
-            idx = off + k * t + col_entries[j]
-            B = H[idx][:, idx].toarray()
-            if np.linalg.eigvalsh(B + B.T - np.diag(np.diag(B)))[0] < 0.0:
-                return False
-            spans |= np.linalg.matrix_rank(np.hstack([on, np.eye(d)[:, j:]])) == d
-        if not spans:
+    off_cols = np.linalg.norm(L, axis=1) <= OFF                  # (K, d): switched-off columns
+    steps = np.flatnonzero(off_cols.any(axis=1))
+    if steps.size == 0:
+        return True
+    # E_j + span(on columns) = R^d for the first off column j iff the diagonal
+    # of every column before it (all on; L is lower triangular) is nonzero
+    first = off_cols[steps].argmax(axis=1)
+    diag = np.abs(L[steps][:, np.arange(d), np.arange(d)])
+    if np.any((np.arange(d)[None, :] < first[:, None]) & (diag <= OFF)):
+        return False
+    idx = (off + steps[:, None] * t + np.arange(t)[None, :]).ravel()
+    sub = hess(z, p, 1.0, np.asarray(lam_g, float)).sparse().tocsr()[idx][:, idx].toarray()     # upper triangle
+    sub = sub + sub.T - np.diag(np.diag(sub))
+    n = steps.size
+    blocks = sub.reshape(n, t, n, t)[np.arange(n), :, np.arange(n), :]       # (n, t, t): each step's own
+    for j in range(d):
+        ent = np.array([i for i, (_, c) in enumerate(tri) if c == j])
+        at = off_cols[steps, j]
+        if at.any() and np.linalg.eigvalsh(blocks[at][:, ent][:, :, ent])[:, 0].min() < 0.0:
             return False
     return True
