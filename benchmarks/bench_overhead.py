@@ -14,7 +14,7 @@ library's functions in place:
   or ``Recorder.eval_buffer``), per call and per IPOPT iteration (CasADi's
   conversion of its inputs to DMs, before the Python side, counts as ``ipopt``);
 * ``candidate_checks`` and ``history``: the exact checks of the solver's
-  candidates and the history records (``_safe_points``, ``_record_attempt``);
+  candidates and the history records (``safe_points``, ``record_attempt``);
 * ``ccp_polish``: the CCP polish after IPOPT (``ccp.run``);
 * ``finish``: the driver's finish (exact check, ``verify``, result);
 * ``other``: the rest (argument checks, the model, auto's own exact check).
@@ -60,8 +60,8 @@ class CpuTimers:
         ccp = sys.modules["belief_nlp.methods.ccp"]
         rec = sys.modules["belief_nlp.methods.nlp_recorder"]
         for mod, name, part in ((drv, "_warm_start", "warm_start"), (drv, "SmoothingProblem", "problem_setup"),
-                                (drv, "_finish", "finish"), (eng, "_safe_points", "candidate_checks"),
-                                (eng, "_record_attempt", "history"), (ccp, "run", "ccp_polish")):
+                                (drv, "_finish", "finish"), (eng, "safe_points", "candidate_checks"),
+                                (eng, "record_attempt", "history"), (ccp, "run", "ccp_polish")):
             setattr(mod, name, self._wrap(getattr(mod, name), part))
         # the callback's Python side: eval (DM inputs) or, where the recorder has it, eval_buffer
         name = "eval_buffer" if hasattr(rec.Recorder, "has_eval_buffer") and "eval_buffer" in vars(rec.Recorder) \

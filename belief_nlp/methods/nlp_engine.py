@@ -61,7 +61,6 @@ from __future__ import annotations
 import logging
 import os
 import time
-from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
@@ -71,18 +70,20 @@ from ..model import Layout
 from ..model.nlp_form import NLPProblem
 from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.policy import DEFAULT_POLICY
-from ..smoother.result import STATUSES, IterationRecord
+from ..smoother.result import STATUSES
 from .nlp_backend import NLPBackend, solver_stats
 from . import nlp_resume
 from ..model.nlp_prefix import longer
 from .nlp_build import _CACHE, _GRAPHS, _base_key, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
 from .nlp_options import POLISH_RETRY, nlp_options  # noqa: F401 - nlp_options: re-exported
 from .nlp_recorder import Recorder
+from .nlp_stage import STOPS, Stage, outcome, record_attempt, safe_points
 from .nlp_stationary import sensing_stationary
 
 __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
 
 log = logging.getLogger("belief_nlp.smoother")
+
 
 def _log_size(log_path: str | None) -> int:
     try:
@@ -91,83 +92,17 @@ def _log_size(log_path: str | None) -> int:
         return 0
 
 
-def _safe_points(problem: SmoothingProblem, nlp: NLPProblem, recorder: Recorder, z_end: np.ndarray | None,
-                 converged: bool) -> list[tuple[float, Layout, str, int | None]]:
-    """Exactly safe points among the solver's last point and the recorded feasible
-    iterates, as (cost, point, description, iteration or None for the last
-    point); when the solver converged and its last point is safe, that point alone."""
-    pool = [(None, z_end)] if z_end is not None and np.all(np.isfinite(z_end)) else []
-    pool += [(it, zv) for _, it, zv in recorder.best]
-    found = []
-    for it, zv in pool:
-        try:
-            chk = problem.check(problem.model.tighten(nlp.unpack(zv)))
-        except np.linalg.LinAlgError:
-            continue
-        if not chk.safe and it is None:
-            # the last point of an unconverged run often sits ~1e-6 outside
-            # (a polish next to a constraint it cannot quite meet): the
-            # shared repair adds a little sensing when that makes it safe
-            chk = problem.repair(chk) or chk
-        if not chk.safe:
-            continue
-        where = "the solver's final point" if it is None else f"iterate {it} (the best feasible one)"
-        found.append((problem.model.cost(chk.point)[0], chk.point, where, it))
-        if it is None and converged:
-            return found
-    return found
-
-
-def _record_attempt(problem: SmoothingProblem, nlp: NLPProblem, recorder: Recorder, start: int,
-                    found: list, raw_status: str) -> None:
-    """History records of one attempt's iterations (cost parts from the recorder)."""
-    rows = recorder.rows[start:]
-    if not rows:
-        return
-    D = problem.model.data
-    safe = {it: z for _, z, _, it in found if it is not None}
-    last = rows[-1][0]
-    final = next((z for _, z, _, it in found if it is None), None)
-    for it, mmin, viol, dt, kgap, ctrl, info in rows:
-        rec = IterationRecord(it, float(ctrl + D.alpha * info), float(ctrl), float(info),
-                              raw_status if it == last else "", dt, 0.0, dt, 1, accepted=viol <= 1e-6,
-                              min_margin=mmin, kalman_gap=kgap)
-        point = final if it == last and final is not None else safe.get(it)
-        problem.record(rec, point if rec.accepted else None)
-
-
-@dataclass
-class _Stage:
-    """What one NLP stage (one formulation, its attempts) ended with."""
-
-    status: str = "not run"              # the solver's own last return status
-    used: int = 0
-    answer: tuple | None = None          # (cost, point, where, None): converged and exactly safe
-    best: tuple | None = None            # lowest-cost exactly safe point seen (cost, point, where)
-    attempts: list = field(default_factory=list)
-    build: str = ""
-    build_time: float = 0.0
-    limit: int = 0                       # the stage's iteration limit
-    duals: tuple | None = None           # (lam_x, lam_g) of the answer's solve (backends with warm_duals)
-    z: np.ndarray | None = None          # the variables of that solve (with duals)
-    solved: tuple | None = None          # (nlp, solver, p) of that solve
-
-
 #: iterations per step a first stage resumed from an earlier answer may take
 #: (it took 4-9 on paper-multi at K = 20 and 65-167 at K = 80, where a fixed
 #: cap of 100 sent 2 of 4 re-plans back to a cold stage of 170-270
 #: iterations); past them the usual first stage runs instead
 RESUME_LIMIT = 5
 
-_STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded", "stalled": "Stalled",
-          "left_box": "Left_Kalman_Box"}
-
-
-def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, *, formulation: str, opts: dict,
+def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: Stage, *, formulation: str, opts: dict,
                  margin: float, regularisation: float, floor: float, candidates: int, cache: bool, start: Layout,
                  max_iter: int, restarts: int, stall: int, offset: int, bar: Any,
                  bounds: Callable | None = None, duals: tuple | None = None, scale: float = 1.0,
-                 prefix: int = 0, rescue: dict | None = None) -> _Stage:
+                 prefix: int = 0, rescue: dict | None = None) -> Stage:
     """The solver on one formulation from ``start``: attempts with restarts
     from the best exactly safe point (module doc), at most ``max_iter``
     iterations. ``bounds(nlp, point)`` -> (z0, lbz, ubz) replaces the NLP's
@@ -197,7 +132,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         remaining = max_iter - stage.used
         budget = remaining if n_attempts >= restarts else max(1, remaining - remaining // 3)
         if problem.out_of_time() or remaining <= 0:
-            stage.status = _STOPS["time_limit" if problem.out_of_time() else "max_iter"]
+            stage.status = STOPS["time_limit" if problem.out_of_time() else "max_iter"]
             break
         pv = nlp.anchor(z_start, problem.model.data.alpha)
         n_rows = len(recorder.rows)
@@ -225,7 +160,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
         except RuntimeError as exc:   # CasADi raises on some solver exceptions
             log.warning("%s raised: %s", backend.name, exc)
             z_end, st = None, solver_stats(solver)
-        raw = _STOPS[recorder.stop_reason] if recorder.stop_reason else backend.return_status(st)
+        raw = STOPS[recorder.stop_reason] if recorder.stop_reason else backend.return_status(st)
         why = backend.refused(raw, opts, recorder.log_path, log_at)
         if why:
             raise ValidationError("solver_options", why)
@@ -241,8 +176,8 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: _Stage, 
             problem.unrecorded_to = max(problem.unrecorded_to, offset + stage.used)
         n_attempts += 1
         status = backend.map_status(raw)
-        found = _safe_points(problem, nlp, recorder, z_end, status == "converged")
-        _record_attempt(problem, nlp, recorder, n_rows, found, raw)
+        found = safe_points(problem, nlp, recorder, z_end, status == "converged")
+        record_attempt(problem, nlp, recorder, n_rows, found, raw)
         if status == "converged" and found and found[0][3] is None:
             if boxed or not can_box or found[0][0] <= start_cost:
                 stage.answer = found[0] if above is None or found[0][0] <= above[0][0] else above[0]
@@ -358,7 +293,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
             # resumed solve ran there (nothing built), else on the problem's own
             if prefix and before is None:
                 prefix, key = 0, _base_key(problem.model, formulation, margin, regularisation)
-            first = _solve_stage(problem, backend, _Stage(), formulation=formulation, floor=floor, opts=opts,
+            first = _solve_stage(problem, backend, Stage(), formulation=formulation, floor=floor, opts=opts,
                                  rescue=rescue_opts,
                                  start=problem.start, max_iter=max_iter - (before.used if before else 0),
                                  restarts=restarts, offset=problem.iterations, scale=scale_means, prefix=prefix,
@@ -380,7 +315,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
             # the floored answer senses >= floor^2 in every direction: switch the
             # directions held at the floor off and free the rest on the exact
             # Cholesky NLP (docs/numerics.md, "IPOPT iterations")
-            second = _solve_stage(problem, backend, _Stage(), formulation="cholesky", floor=floor, opts=polish_opts,
+            second = _solve_stage(problem, backend, Stage(), formulation="cholesky", floor=floor, opts=polish_opts,
                                   bounds=lambda nlp, lay: nlp.without_sensing(lay, floor), start=first.answer[1],
                                   max_iter=min(int(polish), max_iter - first.used), restarts=0,
                                   offset=problem.iterations, duals=first.duals if backend.warm_duals else None,
@@ -389,7 +324,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     finally:                  # also when a solver refused its options (ValidationError)
         if bar is not None:
             bar.close()
-    out = _outcome(problem, backend, stages, max_iter)
+    out = outcome(problem, backend, stages, max_iter)
     out.stats["resumed"] = resumed
     out.stats["resumed_stage"] = "polish" if first is direct else "first" if resumed == "yes" else None
     if skipped:
@@ -414,7 +349,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
 
 
 def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts: dict, floor: float,
-             max_iter: int, common: dict, prefix: int) -> _Stage | None:
+             max_iter: int, common: dict, prefix: int) -> Stage | None:
     """The first stage from ``resume``'s variables and multipliers, with the
     backend's ``resume_options`` (where the user's solver options are silent);
     one attempt of at most :data:`RESUME_LIMIT` K iterations; on ``resume``'s
@@ -433,7 +368,7 @@ def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts:
 
 
 def _resumed_polish(problem: SmoothingProblem, backend: NLPBackend, state: dict, opts: dict, floor: float,
-                    max_iter: int, common: dict, prefix: int) -> _Stage | None:
+                    max_iter: int, common: dict, prefix: int) -> Stage | None:
     """The polish stage alone from an earlier polish's answer and multipliers
     (``state``), its switched-off sensing kept off; one attempt of at most
     ``max_iter`` iterations (None when the prefix cannot be frozen)."""
@@ -445,58 +380,12 @@ def _resumed_polish(problem: SmoothingProblem, backend: NLPBackend, state: dict,
                          duals=(state["lam_x"], state["lam_g"]), prefix=prefix, **common)
 
 
-def _frozen_stage(problem: SmoothingProblem, backend: NLPBackend, **kw: Any) -> _Stage | None:
+def _frozen_stage(problem: SmoothingProblem, backend: NLPBackend, **kw: Any) -> Stage | None:
     """:func:`_solve_stage` on a resume state's graph, or None when its prefix
     cannot be frozen at the problem's start (our ValidationError on "resume")."""
     try:
-        return _solve_stage(problem, backend, _Stage(), **kw)
+        return _solve_stage(problem, backend, Stage(), **kw)
     except ValidationError as exc:
         if exc.field != "resume":
             raise
         return None
-
-
-def _outcome(problem: SmoothingProblem, backend: NLPBackend, stages: list[_Stage], max_iter: int) -> Outcome:
-    """The run's status, answer and raw stats from its stages (``max_iter``:
-    the run's iteration limit, the method's or a lower ``max_iter`` solver option)."""
-    first, last = stages[0], stages[-1]
-    attempts = [a for s in stages for a in s.attempts]
-    stats: dict[str, Any] = {
-        "iteration_limit": int(max_iter),
-        "build": first.build, "build_time": sum(s.build_time for s in stages), "attempts": attempts,
-        "return_status": first.status, "iter_count": sum(s.used for s in stages),
-        "restoration": None if any(a["restoration"] is None for a in attempts)
-        else sum(a["restoration"] for a in attempts),
-        "cpu_time": sum(a["cpu_time"] for a in attempts)}
-    status = backend.map_status(first.status)
-    message = f"{backend.name} returned {first.status} after {first.used} iterations"
-    if len(first.attempts) > 1:
-        message += f" in {len(first.attempts)} attempts ({', '.join(a['return_status'] for a in first.attempts)})"
-    elif first.status == _STOPS["max_iter"] and first.used < first.limit:
-        # the first attempt gets two thirds of the limit; the rest is for a
-        # restart from a safe point below the start, and there was none
-        message += (f", the first attempt's share of the iteration limit {first.limit}: the rest "
-                    f"({first.limit - first.used}) is kept for a restart from an exactly safe iterate below the "
-                    f"warm start, and there was none")
-    answer = first.answer
-    if len(stages) > 1:
-        stats["polish_status"] = last.status
-        if last.answer is not None and last.answer[0] <= first.answer[0]:
-            answer = last.answer
-            message += f"; polished on the exact Cholesky NLP in {last.used} iterations"
-        elif last.best is not None and last.best[0] < first.answer[0]:
-            # unconverged (often ~1e-6 short of an equality it cannot quite
-            # meet), yet an exactly safe point below stage 1's answer
-            answer = (*last.best, None)
-            message += (f"; polish ended {last.status} after {last.used} iterations, its best exactly safe point "
-                        f"({last.best[2]}) is used")
-        else:
-            message += f"; polish ended {last.status} after {last.used} iterations (not lower; not used)"
-    if status == "converged" and answer is None:
-        status = "infeasible_iterate"
-        message += f"; its last point failed the exact safety check ({STATUSES[status]})"
-    elif status != "converged":
-        message += f" ({STATUSES[status]})"
-    if problem.stop_requested and status != "converged":
-        status, message = "stopped", STATUSES["stopped"]
-    return Outcome(status, message, answer[1] if answer else None, backend.name, stats)
