@@ -108,9 +108,9 @@ def test_three_dimensions_and_methods_without_a_polish(monkeypatch):
     are the Lagrangian's curvature there too; a run without the polish
     reports None (nothing is claimed)."""
     sc = bn.load_scenario("cube3d")
-    ws = next(w for w in (bn.plan(sc, n_nodes=300, seed=s, noise="per_step") for s in range(4)) if w.success)
-    res, args = _captured(monkeypatch, sc, ws.path, K=10, alpha=1.0)
+    planned = next(p for p in (bn.plan(sc, n_nodes=300, seed=s, noise="per_step") for s in range(4)) if p.success)
+    res, args = _captured(monkeypatch, sc, planned.path, K=10, alpha=1.0)
     worst = _check_blocks_by_function_values(*args)
     assert res.stats["ipopt"]["sensing_stationary"] == (worst >= 0.0)
-    none = bn.smooth(sc, ws.path, K=10, alpha=1.0, method="ipopt", polish=0)
+    none = bn.smooth(sc, planned.path, K=10, alpha=1.0, method="ipopt", polish=0)
     assert none.stats["sensing_stationary"] is None

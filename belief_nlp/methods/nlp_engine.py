@@ -19,17 +19,22 @@ Stages (docs/numerics.md, "IPOPT iterations"):
    stage 1's when it converged, is exactly safe and is not costlier.
 
 A re-plan with the option ``resume`` (:mod:`.nlp_resume`) first resumes
-the earlier polish alone (when its answer was the run's), then the first
-stage from its own earlier state, then the usual first stage.
+the polish alone from the earlier polish's answer and multipliers, when that
+answer was the run's (its switched-off sensing stays off: a loop's re-plan
+keeps the sensing pattern while this converges); when it does not end
+converged and exactly safe, the first stage resumes from its own earlier
+state and the polish follows; when that fails too, the usual first stage
+runs from the warm start.
 
 When a stage stops without converging (iteration share, solver failure, a
 stall of ``stall`` iterations without a lower feasible cost), the solver is
 restarted from the best exactly safe point so far. For a backend with
 ``kalman_box`` (IPOPT) the restart runs inside the Kalman box
-(:meth:`~belief_nlp.model.nlp_form.NLPProblem.kalman_box`; docs/numerics.md,
-"The Kalman box") when there is no such point below the stage's start, when
-an iterate left the box tenfold (status "Left_Kalman_Box"), or when the
-stage converged above its start. A
+(:meth:`~belief_nlp.model.nlp_form.NLPProblem.kalman_box`: bounds every
+Kalman-feasible point satisfies; docs/numerics.md, "The Kalman box") when
+there is no such point below the stage's start, when an iterate left the box
+tenfold (a lifted factor |M_ij| > 10 sqrt((W^-1)_ii): the recorder stops it,
+status "Left_Kalman_Box"), or when the stage converged above its start. A
 backend with ``stage_options["rescue"]`` (Uno: funnel-SQP; fatrop: mu_init
 1e-3, its one restart) restarts from the start with those options when
 nothing safe was found below it. The solver's last point is the answer when
@@ -337,14 +342,14 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         if answered and pol.solved is not None else None
     if key and first.answer is not None and first.duals is not None:
         # the polish's state when its answer is the run's (a later re-plan resumes it alone)
-        pol = (pol.z, pol.duals) if answered else None
+        polished = (pol.z, pol.duals) if answered else None
         if len(stages) > 1:              # a polish that did not lower stage 1's answer: skipped next time
             skip_next = 0 if out.point is not first.answer[1] else int(polish_retry)
         else:
             skip_next = skip - 1 if skipped else 0
         # after the polish alone, the first stage's state stays the earlier one's
         z, duals = (resume["z"], (resume["lam_x"], resume["lam_g"])) if first is direct else (first.z, first.duals)
-        out.resume = nlp_resume.state(backend.plugin, key, floor, z, duals, prefix, pol, skip_next)
+        out.resume = nlp_resume.state(backend.plugin, key, floor, z, duals, prefix, polished, skip_next)
     return out
 
 

@@ -33,7 +33,8 @@ __all__ = ["sensing_stationary"]
 
 #: a column of L_k this short (scaled units; the floor is 1e-2) counts as off:
 #: its block is 2 G_k up to O(|l_j|), and the polish's gradient in it, 2 G_k l_j,
-#: says nothing about G_k (the polish left such columns at 1e-7 .. 1e-6)
+#: says nothing about G_k (measured on 24 runs at K = 20: such columns at
+#: 2e-24 .. 2.5e-9, none between that and the floor)
 OFF = 1e-5
 
 
