@@ -98,6 +98,7 @@ def test_a_ccp_polish_cannot_lower_a_stationary_answer_and_auto_skips_it(pm20):
     assert res.cost * (1 - 1e-5) <= polished.cost <= res.cost
     moved = bn.smooth(sc, ws, alpha=1.0)
     assert moved.stats["ipopt"]["sensing_stationary"] is False
+    assert "would lower the cost" in moved.message and "would lower the cost" not in res.message
     assert moved.method == "auto:ipopt+ccp" and bn.verify(sc, moved.path).safe
     plain = bn.smooth(sc, ws, alpha=1.0, ccp_polish=0)
     assert moved.cost < plain.cost * (1 - 1e-5)           # it senses where IPOPT's polish had switched off

@@ -340,6 +340,8 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     # stationary in S as well (nlp_stationary): auto's CCP polish could not lower it
     out.stats["sensing_stationary"] = sensing_stationary(*pol.solved[:2], pol.z, pol.solved[2], pol.duals[1]) \
         if answered and pol.solved is not None else None
+    if out.stats["sensing_stationary"] is False:
+        out.message += "; sensing at a step the polish switched off would lower the cost (auto's CCP polish does)"
     if key and first.answer is not None and first.duals is not None:
         # the polish's state when its answer is the run's (a later re-plan resumes it alone)
         polished = (pol.z, pol.duals) if answered else None
