@@ -89,8 +89,11 @@ class Timers:
         for mod, name, part in ((mods["smoother.driver"], "_warm_start", "warm_start"),
                                 (mods["smoother.driver"], "SmoothingProblem", "problem_setup"),
                                 (mods["smoother.driver"], "_finish", "finish"),
+                                # the engine's names before and after session 20 (a baseline tree may be older)
                                 (mods["methods.nlp_engine"], "_safe_points", "candidate_checks"),
-                                (mods["methods.nlp_engine"], "_record_attempt", "history")):
+                                (mods["methods.nlp_engine"], "safe_points", "candidate_checks"),
+                                (mods["methods.nlp_engine"], "_record_attempt", "history"),
+                                (mods["methods.nlp_engine"], "record_attempt", "history")):
             if hasattr(mod, name):
                 setattr(mod, name, self._wrap(getattr(mod, name), part))
 
