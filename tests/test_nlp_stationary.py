@@ -37,7 +37,7 @@ def _blocks(nlp, z):
     return out
 
 
-def _check_blocks_by_function_values(nlp, solver, z, p, lam_g):
+def _check_blocks_by_function_values(nlp, solver, p, z, lam_g):
     """Each block's eigenvalues against the Lagrangian's second differences
     (f + lam_g^T g by function values alone, no Hessian) along its
     eigenvectors; returns the smallest eigenvalue."""

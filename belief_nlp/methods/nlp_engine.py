@@ -338,7 +338,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     pol = first if first is direct else stages[1] if len(stages) > 1 else None
     answered = pol is not None and pol.answer is not None and out.point is pol.answer[1]
     # stationary in S as well (nlp_stationary): auto's CCP polish could not lower it
-    out.stats["sensing_stationary"] = sensing_stationary(*pol.solved[:2], pol.z, pol.solved[2], pol.duals[1]) \
+    out.stats["sensing_stationary"] = sensing_stationary(*pol.solved, pol.z, pol.duals[1]) \
         if answered and pol.solved is not None else None
     if out.stats["sensing_stationary"] is False:
         out.message += "; sensing at a step the polish switched off would lower the cost (auto's CCP polish does)"

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..model.nlp_form import NLPProblem
+from ..model.nlp_matrices import lower_stack
 
 __all__ = ["sensing_stationary"]
 
@@ -38,13 +39,13 @@ __all__ = ["sensing_stationary"]
 OFF = 1e-5
 
 
-def sensing_stationary(nlp: NLPProblem, solver: Any, z: np.ndarray, p: np.ndarray, lam_g: np.ndarray) -> bool | None:
-    """True when the "cholesky" NLP's answer ``z`` (parameters ``p``, the
-    rows' multipliers ``lam_g``) is stationary in S at every step with a
-    switched-off column (module doc; a column shorter than :data:`OFF`
-    counts as off); False when a block has a negative eigenvalue or a
-    step's blocks do not determine G_k; None when the
-    solver has no Hessian function to ask (the caller assumes nothing).
+def sensing_stationary(nlp: NLPProblem, solver: Any, p: np.ndarray, z: np.ndarray, lam_g: np.ndarray) -> bool | None:
+    """True when the "cholesky" NLP's answer ``z`` (``solver``, the nlpsol
+    that gave it, its parameters ``p``, the rows' multipliers ``lam_g``) is
+    stationary in S at every step with a switched-off column (module doc; a
+    column shorter than :data:`OFF` counts as off); False when a block has
+    a negative eigenvalue or a step's blocks do not determine G_k; None when
+    the solver has no Hessian function to ask (the caller assumes nothing).
 
     At step k the polish's KKT conditions give G_k L_on = 0 for its columns
     that are on, so G_k >= 0 iff G_k >= 0 on any subspace E that spans R^d
@@ -57,8 +58,7 @@ def sensing_stationary(nlp: NLPProblem, solver: Any, z: np.ndarray, p: np.ndarra
         return None
     tri, d, K, off = nlp.info["tri"], nlp.info["d"], nlp.info["K"], nlp.info["sensing_offset"]
     t = len(tri)
-    L = np.zeros((K, d, d))
-    L[:, [r for r, _ in tri], [c for _, c in tri]] = np.asarray(z, float)[off:off + K * t].reshape(K, t)
+    L = lower_stack(np.asarray(z, float)[off:off + K * t].reshape(K, t), tri, d)
     off_cols = np.linalg.norm(L, axis=1) <= OFF                  # (K, d): switched-off columns
     steps = np.flatnonzero(off_cols.any(axis=1))
     if steps.size == 0:

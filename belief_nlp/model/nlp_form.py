@@ -42,7 +42,7 @@ from ..errors import ValidationError
 from . import terms
 from .data import Layout, ProblemData
 from .evaluate import BeliefModel
-from .nlp_matrices import _lower, _psd_factor, _sym_inv, _symmetric, _tri_index
+from .nlp_matrices import _lower, _psd_factor, _sym_inv, _symmetric, _tri_index, lower_stack
 
 __all__ = ["NLPProblem", "build_nlp", "FORMULATIONS"]
 
@@ -190,8 +190,7 @@ class NLPProblem:
         budget = bool(self.info.get("n_budget"))
         before = self.margin_values(z0)[0] if budget else None
         # the "cholesky" NLP holds L's entries: column norms without factoring S_k again
-        L = np.zeros((K, d, d))
-        L[:, [i for i, _ in tri], [j for _, j in tri]] = z0[off:off + K * len(tri)].reshape(K, len(tri))
+        L = lower_stack(z0[off:off + K * len(tri)].reshape(K, len(tri)), tri, d)
         off_cols = np.linalg.norm(L, axis=1) <= floor * (1 + slack)        # (K, d)
         col_of = np.array([j for _, j in tri])
         idx = off + np.flatnonzero(off_cols[:, col_of].ravel())           # entries of switched-off columns

@@ -1,6 +1,6 @@
 """Matrix helpers of the NLP form (:mod:`.nlp_form`): the packing of a
 lower-triangular or symmetric d x d matrix into its d (d + 1) / 2 entries,
-a symmetrised symbolic inverse, and the numeric Cholesky factor of a
+its numeric stack (:func:`lower_stack`), a symmetrised symbolic inverse, and the numeric Cholesky factor of a
 sensing matrix's PSD part (the L of a warm start's S = L L^T)."""
 
 from __future__ import annotations
@@ -17,6 +17,14 @@ def _lower(v: ca.SX, tri: list, d: int) -> ca.SX:
     M = ca.SX.zeros(d, d)
     for p, (i, j) in enumerate(tri):
         M[i, j] = v[p]
+    return M
+
+
+def lower_stack(v: np.ndarray, tri: list, d: int) -> np.ndarray:
+    """The numeric :func:`_lower` of every row of ``v`` (n, len(tri)): (n, d, d)."""
+    v = np.asarray(v, float)
+    M = np.zeros((v.shape[0], d, d))
+    M[:, [i for i, _ in tri], [j for _, j in tri]] = v
     return M
 
 
