@@ -98,9 +98,14 @@ def execute(path: Path, quick: bool = False, timeout: int = TIMEOUT) -> nbformat
             rc = Path(folder) / "matplotlibrc"
             rc.write_text(f"figure.dpi: {FIGURE_DPI}\n")
             os.environ["MATPLOTLIBRC"] = str(rc)
+            km = _kernel_manager(folder)
             client = NotebookClient(nb, timeout=timeout, kernel_name="python3", record_timing=False,
-                                    resources={"metadata": {"path": folder}})
-            client.execute()
+                                    km=km, resources={"metadata": {"path": folder}})
+            try:
+                client.execute()
+            finally:  # nbclient shuts down only the kernels of managers it made itself
+                if km.has_kernel:
+                    km.shutdown_kernel(now=True)
     finally:
         for key, value in saved.items():
             if value is None:
@@ -108,6 +113,20 @@ def execute(path: Path, quick: bool = False, timeout: int = TIMEOUT) -> nbformat
             else:
                 os.environ[key] = value
     return tidy(nb)
+
+
+def _kernel_manager(folder: str):
+    """A kernel manager whose kernel talks over Unix sockets in ``folder``.
+
+    Over TCP, jupyter_client picks free ports, closes them and lets the kernel
+    bind them later; with ``--jobs 2`` two kernels starting at once can pick
+    the same port, and one dies before its first reply ("Kernel died before
+    replying to kernel_info": a CI run lost notebook 02 that way). Socket
+    files in a folder of this kernel's own cannot collide.
+    """
+    from jupyter_client.manager import KernelManager
+
+    return KernelManager(kernel_name="python3", transport="ipc", ip=str(Path(folder) / "kernel"))
 
 
 def tidy(nb: nbformat.NotebookNode) -> nbformat.NotebookNode:
