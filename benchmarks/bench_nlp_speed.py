@@ -17,6 +17,7 @@ every figure: the machine is shared).
 
     python benchmarks/bench_nlp_speed.py [--seeds 10 5 3] [--methods auto ipopt fatrop sqp] [--random]
                                          [--families random-polygons] [--out FILE]
+    python benchmarks/bench_nlp_speed.py --first-calls 5 --methods auto ipopt --out FILE   # first calls only
 """
 
 from __future__ import annotations
@@ -140,6 +141,24 @@ def first_call(method: str, alpha: float = 1.0) -> dict:
     return rec
 
 
+def _first_calls_only(methods: list[str], n: int, out: Path) -> None:
+    """``n`` fresh processes per (method, alpha) of :func:`first_call`, alternating; medians."""
+    res = {"machine": {"cpus": os.cpu_count(), "loadavg_at_start": os.getloadavg()},
+           "settings": {"case": "paper-multi, planner seed 0, N = 500, per-step noise, K = 20", "processes": n},
+           "runs": {}}
+    for _ in range(n):
+        for alpha in (1.0, 0.1):
+            for m in methods:
+                if m != "sqp":
+                    res["runs"].setdefault(f"{m} alpha {alpha}", []).append(first_call(m, alpha))
+    res["median_extra_wall_s"] = {k: float(np.median([r["extra_wall_s"] for r in v])) for k, v in res["runs"].items()}
+    res["max_extra_wall_s"] = {k: float(np.max([r["extra_wall_s"] for r in v])) for k, v in res["runs"].items()}
+    res["machine"]["loadavg_at_end"] = os.getloadavg()
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps(res, indent=1, default=float))
+    print(json.dumps({"median": res["median_extra_wall_s"], "max": res["max_extra_wall_s"]}, indent=1))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, nargs=3, default=[10, 5, 3], help="seeds at K = 20, 40, 80")
@@ -148,8 +167,13 @@ def main() -> None:
                     help="also random-polygons maps 0..n-1 (one plan each, planner seed 0)")
     ap.add_argument("--families", nargs="+", default=None, help="only these families (paper-multi, random-polygons)")
     ap.add_argument("--out", type=Path, default=HERE / "nlp_speed.json")
+    ap.add_argument("--first-calls", type=int, default=0, metavar="N",
+                    help="only the first call's extra cost: N fresh processes per method and alpha")
     args = ap.parse_args()
     methods = [m for m in args.methods if m in bn.available_methods()]
+    if args.first_calls:
+        _first_calls_only(methods, args.first_calls, args.out)
+        return
     families = args.families or ["paper-multi"] + (["random-polygons"] if args.random else [])
     t0 = time.perf_counter()
     rows: list[dict] = []

@@ -56,6 +56,7 @@ from ..errors import ValidationError
 from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.registry import Method, Option, count, register
 from . import ccp, ipopt
+from .ccp_steps import prefetch_conic_step
 
 __all__ = ["run", "FIRST_STAGE", "POLISH"]
 
@@ -134,6 +135,11 @@ def run(problem: SmoothingProblem, *, ccp_reserve: int = 50, ccp_polish: int | N
     if ccp_polish is None:       # under a risk budget a CCP step is ~10x dearer (no active-set step): no polish
         ccp_polish = POLISH if problem.model.data.budget is None else 0
     reserve = min(ccp_reserve, problem.max_iter // 2)
+    if ccp_polish and ccp_opts[0].upper() == "CLARABEL" and problem.model.data.budget is None:
+        # the polish's active-set step, when no cache has it, built beside IPOPT's solve (first
+        # call on a model: 0.23 s above the next instead of 0.35 s at
+        # K = 20: docs/performance.md, "Smoothing: the first call of a process")
+        problem.while_solving.append(lambda: prefetch_conic_step(problem.model))
     # IPOPT's polish always runs here: its converged answer is what lets a re-plan skip the CCP polish
     # (10 steps of ~0.7 s at K = 80; with the polish skipped after a miss, seed 2 of
     # receding_auto_k80.json took 6.6-8.2 s a re-plan instead of 0.3-1.3 s)

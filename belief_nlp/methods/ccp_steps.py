@@ -1,11 +1,21 @@
 """Where a CCP step comes from: the compiled CVXPY problem and the active-set
 step's conic data of a model, each built once per (scenario, K) and kept in
-memory (and on disk with the disk cache); and, for a re-plan after executed
+memory (and on disk with the disk cache); for a re-plan after executed
 steps, the step of the longer horizon still in memory with those steps
-frozen (:mod:`belief_nlp.model.conic_prefix`)."""
+frozen (:mod:`belief_nlp.model.conic_prefix`); and the active-set step built
+in a background thread while IPOPT solves (:func:`prefetch_conic_step`:
+``auto``'s first call on a model, whose CCP polish needs it afterwards).
+
+Why a thread works: CasADi's wheels are built with thread-safe symbolics
+(``CASADI_WITH_THREADSAFE_SYMBOLICS``) and IPOPT's solve releases the GIL,
+so the build (76-110 ms at K = 20) runs on the other core beside the solve
+(docs/performance.md, "Smoothing: the first call of a process").
+"""
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -18,9 +28,18 @@ from ..model.cvxpy_form import CompiledProblem, compile_problem
 from ..model.nlp_prefix import longer
 from ..smoother.policy import DEFAULT_POLICY
 
-__all__ = ["CHI2_MARGIN", "compiled_step", "conic_step_of", "frozen_step"]
+__all__ = ["CHI2_MARGIN", "compiled_step", "conic_step_of", "frozen_step", "prefetch_conic_step", "PREFETCH"]
 
 CHI2_MARGIN = DEFAULT_POLICY.conic      # every collision/containment row of the step asks chi2 (1 + this)
+
+#: build the active-set step in the background when asked (:func:`prefetch_conic_step`);
+#: False: only where a step needs it, in the caller's thread
+PREFETCH = True
+
+# key -> Future of a background build not yet taken into the memory cache (touched by
+# the caller's thread only: the worker builds and returns, nothing else)
+_PENDING: dict[str, Future] = {}
+_POOL: list[ThreadPoolExecutor] = []
 
 
 def compiled_step(model: BeliefModel, solver: str = "CLARABEL", cache_dir: str | Path | bool | None = None,
@@ -60,21 +79,78 @@ def _disk(cache_dir: str | Path | bool | None) -> DiskCache | None:
     return DiskCache(None if cache_dir is True else cache_dir)
 
 
+def _conic_key(model: BeliefModel) -> str:
+    return problem_key(model.data, CHI2_MARGIN, "CLARABEL-direct")
+
+
 def conic_step_of(model: BeliefModel, cache_dir: str | Path | bool | None = None) -> ConicStep:
     """The model's step as Clarabel's own data (:mod:`belief_nlp.model.conic_form`),
-    built once per model key: from memory, from the disk cache (``cache_dir``
-    as in :func:`compiled_step`), else built."""
-    key = problem_key(model.data, CHI2_MARGIN, "CLARABEL-direct")
+    built once per model key: from memory, from a background build
+    (:func:`prefetch_conic_step`; waited for), from the disk cache
+    (``cache_dir`` as in :func:`compiled_step`), else built."""
+    key = _conic_key(model)
     hit = MEMORY.get(key)
     if hit is None:
+        _settle()
+        hit = MEMORY.get(key) or _taken(key)
         disk = _disk(cache_dir)
-        hit = disk.load(key, kind="conic") if disk is not None else None
+        if hit is None and disk is not None:
+            hit = disk.load(key, kind="conic")
+            if isinstance(hit, ConicStep):
+                disk = None                 # it is there already
         if not isinstance(hit, ConicStep):
             hit = conic_step(model.convex_form)
-            if disk is not None:
-                disk.save(key, hit, kind="conic")
+        if disk is not None:
+            disk.save(key, hit, kind="conic")
         MEMORY.put(key, hit)
     return _for_model(hit, model)
+
+
+def prefetch_conic_step(model: BeliefModel) -> bool:
+    """Start building ``model``'s active-set step in a background thread
+    (:func:`conic_step_of` takes it from there); whether a build started.
+    Not when :data:`PREFETCH` is off, the step is in memory or building,
+    the process keeps a disk cache (the step may be there, and reading it
+    in the caller is cheap), or one CPU is all this process may use."""
+    _settle()
+    key = _conic_key(model)
+    if not PREFETCH or key in _PENDING or MEMORY.get(key) is not None or disk_cache() is not None \
+            or _cpus() < 2:
+        return False
+    if not _POOL:
+        _POOL.append(ThreadPoolExecutor(1, thread_name_prefix="belief_nlp-conic"))
+    _PENDING[key] = _POOL[0].submit(lambda: conic_step(model.convex_form))
+    return True
+
+
+def _taken(key: str) -> ConicStep | None:
+    """The background build of ``key`` (waited for), or None: none started,
+    or it raised (the caller then builds in its own thread, where the error,
+    if it recurs, is raised with its own traceback)."""
+    future = _PENDING.pop(key, None)
+    if future is None:
+        return None
+    try:
+        return future.result()
+    except Exception:
+        return None
+
+
+def _settle() -> None:
+    """Finished background builds into the memory cache (a step built for an
+    answer that needed no polish is kept for the next call on the model)."""
+    for key in [k for k, f in _PENDING.items() if f.done()]:
+        hit = _taken(key)
+        if hit is not None and MEMORY.get(key) is None:
+            MEMORY.put(key, hit)
+
+
+def _cpus() -> int:
+    """CPUs this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:              # not on macOS / Windows
+        return os.cpu_count() or 1
 
 
 def frozen_step(model: BeliefModel, prefix: int) -> FrozenConic | None:

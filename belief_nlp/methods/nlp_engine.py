@@ -152,6 +152,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: Stage, *
                 # a row without bounds (a frozen step's, nlp_prefix) starts without a multiplier
                 bounded = np.isfinite(nlp.lbg) | np.isfinite(nlp.ubg)
                 warm = {"lam_x0": duals[0], "lam_g0": np.where(bounded, duals[1], 0.0)}
+            problem.solver_started()        # built: what may overlap the solve starts now
             sol, st, ended = backend.solve(
                 solver, dict(x0=x0, p=pv, lbx=lbx, ubx=ubx, lbg=nlp.lbg, ubg=nlp.ubg, **warm), problem.deadline)
             recorder.stop_reason = ended or recorder.stop_reason     # ended from outside (fatrop's watchdog)

@@ -193,6 +193,16 @@ class SmoothingProblem:
         #: iterations a solver performed past its last record: a solve ended
         #: from outside (fatrop's watchdog) returns no point to record
         self.unrecorded_to = 0
+        #: work to start when a solver first runs (:meth:`solver_started`):
+        #: IPOPT's solve releases the GIL, so work started in a thread then
+        #: overlaps it (auto's CCP step built while IPOPT solves)
+        self.while_solving: list[Callable[[], object]] = []
+
+    def solver_started(self) -> None:
+        """Start the work :attr:`while_solving` holds (each job once)."""
+        jobs, self.while_solving = self.while_solving, []
+        for job in jobs:
+            job()
 
     # ------------------------------------------------------------ budget
     @property
