@@ -12,13 +12,13 @@ import pytest
 import scipy.sparse as sp
 
 import belief_nlp as bn
-from belief_nlp.methods import ccp_steps
+from belief_nlp.methods import background, ccp_steps
 from belief_nlp.model.cache import MEMORY
 from belief_nlp.model.conic_form import conic_step
 
 from conftest import ccp_problem, paper_multi_path_pair
 
-pytestmark = pytest.mark.skipif(ccp_steps._cpus() < 2, reason="a background build needs a second CPU")
+pytestmark = pytest.mark.skipif(background.cpus() < 2, reason="a background build needs a second CPU")
 
 
 @pytest.fixture
@@ -26,14 +26,12 @@ def fresh(monkeypatch):
     """No step in memory or building, no disk cache; restored afterwards."""
     monkeypatch.setattr(ccp_steps, "disk_cache", lambda: None)
     saved = dict(MEMORY._d)
-    for future in ccp_steps._PENDING.values():
-        future.result()
-    ccp_steps._PENDING.clear()
+    background.wait_all()
+    background.settle()
     MEMORY.clear()
     yield
-    for future in ccp_steps._PENDING.values():
-        future.result()
-    ccp_steps._PENDING.clear()
+    background.wait_all()
+    background.settle()
     MEMORY.clear()
     MEMORY._d.update(saved)
 
@@ -85,7 +83,7 @@ def test_no_background_build_when_switched_off(fresh, monkeypatch):
     monkeypatch.setattr(ccp_steps, "PREFETCH", True)
     monkeypatch.setattr(ccp_steps, "disk_cache", lambda: object())   # a disk cache answers first calls
     assert not ccp_steps.prefetch_conic_step(model)
-    assert not ccp_steps._PENDING
+    assert not background._JOBS
 
 
 def test_failed_background_build_is_built_again_in_the_caller(fresh):
@@ -121,7 +119,7 @@ def test_auto_first_call_gives_the_same_answer_with_the_step_built_beside_ipopt(
     import belief_nlp.methods.auto as auto
     monkeypatch.setattr(auto, "prefetch_conic_step", lambda model: started.append(real(model)) or started[-1])
     beside = bn.smooth(sc, ws, method="auto", alpha=1.0)
-    assert started == [True] and not ccp_steps._PENDING         # built beside IPOPT, then taken
+    assert started == [True] and not background._JOBS           # built beside IPOPT, then taken
     assert alone.stats["stages"] == beside.stats["stages"] == ["ipopt", "ccp polish"]
     assert beside.safe and beside.cost == alone.cost
     np.testing.assert_array_equal(beside.x, alone.x)

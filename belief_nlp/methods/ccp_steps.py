@@ -14,8 +14,6 @@ so the build (76-110 ms at K = 20) runs on the other core beside the solve
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -27,6 +25,7 @@ from ..model.conic_prefix import FrozenConic, frozen_conic
 from ..model.cvxpy_form import CompiledProblem, compile_problem
 from ..model.nlp_prefix import longer
 from ..smoother.policy import DEFAULT_POLICY
+from . import background
 
 __all__ = ["CHI2_MARGIN", "compiled_step", "conic_step_of", "frozen_step", "prefetch_conic_step", "PREFETCH"]
 
@@ -35,11 +34,6 @@ CHI2_MARGIN = DEFAULT_POLICY.conic      # every collision/containment row of the
 #: build the active-set step in the background when asked (:func:`prefetch_conic_step`);
 #: False: only where a step needs it, in the caller's thread
 PREFETCH = True
-
-# key -> Future of a background build not yet taken into the memory cache (touched by
-# the caller's thread only: the worker builds and returns, nothing else)
-_PENDING: dict[str, Future] = {}
-_POOL: list[ThreadPoolExecutor] = []
 
 
 def compiled_step(model: BeliefModel, solver: str = "CLARABEL", cache_dir: str | Path | bool | None = None,
@@ -92,7 +86,7 @@ def conic_step_of(model: BeliefModel, cache_dir: str | Path | bool | None = None
     hit = MEMORY.get(key)
     if hit is None:
         _settle()
-        hit = MEMORY.get(key) or _taken(key)
+        hit = MEMORY.get(key) or background.take(key)[1]
         disk = _disk(cache_dir)
         if hit is None and disk is not None:
             hit = disk.load(key, kind="conic")
@@ -108,49 +102,23 @@ def conic_step_of(model: BeliefModel, cache_dir: str | Path | bool | None = None
 
 def prefetch_conic_step(model: BeliefModel) -> bool:
     """Start building ``model``'s active-set step in a background thread
-    (:func:`conic_step_of` takes it from there); whether a build started.
-    Not when :data:`PREFETCH` is off, the step is in memory or building,
-    the process keeps a disk cache (the step may be there, and reading it
-    in the caller is cheap), or one CPU is all this process may use."""
+    (:mod:`.background`; :func:`conic_step_of` takes it from there); whether
+    a build started. Not when :data:`PREFETCH` is off, the step is in memory
+    or building, the process keeps a disk cache (the step may be there, and
+    reading it in the caller is cheap), or one CPU is all this process may use."""
     _settle()
     key = _conic_key(model)
-    if not PREFETCH or key in _PENDING or MEMORY.get(key) is not None or disk_cache() is not None \
-            or _cpus() < 2:
+    if not PREFETCH or background.running(key) or MEMORY.get(key) is not None or disk_cache() is not None:
         return False
-    if not _POOL:
-        _POOL.append(ThreadPoolExecutor(1, thread_name_prefix="belief_nlp-conic"))
-    _PENDING[key] = _POOL[0].submit(lambda: conic_step(model.convex_form))
-    return True
-
-
-def _taken(key: str) -> ConicStep | None:
-    """The background build of ``key`` (waited for), or None: none started,
-    or it raised (the caller then builds in its own thread, where the error,
-    if it recurs, is raised with its own traceback)."""
-    future = _PENDING.pop(key, None)
-    if future is None:
-        return None
-    try:
-        return future.result()
-    except Exception:
-        return None
+    return background.start(key, lambda: conic_step(model.convex_form))
 
 
 def _settle() -> None:
     """Finished background builds into the memory cache (a step built for an
     answer that needed no polish is kept for the next call on the model)."""
-    for key in [k for k, f in _PENDING.items() if f.done()]:
-        hit = _taken(key)
-        if hit is not None and MEMORY.get(key) is None:
-            MEMORY.put(key, hit)
-
-
-def _cpus() -> int:
-    """CPUs this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:              # not on macOS / Windows
-        return os.cpu_count() or 1
+    for key, step in background.settle():
+        if isinstance(step, ConicStep) and MEMORY.get(key) is None:
+            MEMORY.put(key, step)
 
 
 def frozen_step(model: BeliefModel, prefix: int) -> FrozenConic | None:

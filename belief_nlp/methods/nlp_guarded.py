@@ -32,6 +32,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from . import background
+
 __all__ = ["guarded_call", "can_fork", "STALL_SECONDS"]
 
 #: a child that printed no line for this long is stuck inside an iteration
@@ -162,6 +164,7 @@ def guarded_call(solver: Any, args: dict, stats: Callable[[Any], dict], deadline
     if libc is not None:
         libc.fflush(None)         # or the child would write this process's pending C output again
     parent = os.getpid()
+    background.wait_all()       # no thread of ours inside CasADi (holding its locks) as the child is made
     with warnings.catch_warnings():
         # Python >= 3.12 warns on fork in a threaded process; the child runs the solver only
         warnings.simplefilter("ignore", DeprecationWarning)
