@@ -74,6 +74,7 @@ def _disk(cache_dir: str | Path | bool | None) -> DiskCache | None:
 
 
 def _conic_key(model: BeliefModel) -> str:
+    """Memory (and disk) key of ``model``'s active-set step."""
     return problem_key(model.data, CHI2_MARGIN, "CLARABEL-direct")
 
 
