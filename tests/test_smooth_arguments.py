@@ -22,6 +22,7 @@ def small():
 
 @pytest.mark.parametrize("kwargs, field", [
     ({"alpha": float("nan")}, "alpha"), ({"alpha": float("inf")}, "alpha"), ({"alpha": -1.0}, "alpha"),
+    ({"alpha": 4.0463340028e10}, "alpha"),      # above the scenario's bound: CCP ground for 62 s there
     ({"time_limit": float("nan")}, "time_limit"), ({"time_limit": 0}, "time_limit"),
     ({"tol": float("nan")}, "tol"), ({"tol": 2.0}, "tol"),
     ({"max_iter": 0}, "max_iter"), ({"max_iter": 2.5}, "max_iter"), ({"max_iter": True}, "max_iter"),

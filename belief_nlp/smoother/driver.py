@@ -31,6 +31,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..allocation import RiskAllocation, RiskBudget, tail
+from .._limits import MAX_ALPHA
 from ..errors import InfeasibleStartError, ValidationError
 from ..inputs import as_path, as_scenario
 from ..model import BeliefModel, Layout
@@ -78,8 +79,10 @@ def _check_args(max_iter, tol, alpha, time_limit, K, solver_options, callback) -
         raise ValidationError("max_iter", f"must be None or a positive integer, got {max_iter!r}")
     if not _is_num(tol) or not (0 < tol < 1):
         raise ValidationError("tol", f"must be a number in (0, 1), got {tol!r}")
-    if alpha is not None and (not _is_num(alpha) or not math.isfinite(alpha) or alpha < 0):
-        raise ValidationError("alpha", f"must be None or a finite number >= 0, got {alpha!r}")
+    # the scenario's and the planner's bound too (_limits): at alpha = 4e10 the control term
+    # fell below the solvers' tolerances and a CCP step ground in SCS for 62 s (session 21)
+    if alpha is not None and (not _is_num(alpha) or not math.isfinite(alpha) or not 0 <= alpha <= MAX_ALPHA):
+        raise ValidationError("alpha", f"must be None or a finite number in [0, {MAX_ALPHA:g}], got {alpha!r}")
     if time_limit is not None and (not _is_num(time_limit) or not math.isfinite(time_limit) or time_limit <= 0):
         raise ValidationError("time_limit", f"must be None or a finite number > 0, got {time_limit!r}")
     if K is not None and (not _is_int(K) or not 1 <= K <= MAX_K):
@@ -129,7 +132,7 @@ def smooth(scenario: Scenario | str, path: Any, method: str | Callable | Method 
         exponential cones, default CLARABEL; auto and ipopt: IPOPT, auto's
         CCP stage takes ``ccp_solver=``); None uses the method's default.
     alpha : float, optional
-        Information weight; None uses the scenario's. At 0 sensing costs
+        Information weight in [0, 1e6] (the scenario's bound); None uses the scenario's. At 0 sensing costs
         nothing and the NLP has no minimiser: the NLP methods refuse it,
         ``auto`` answers with CCP.
     time_limit : float, optional
