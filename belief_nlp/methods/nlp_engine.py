@@ -242,7 +242,8 @@ def _iterations(stats: dict, recorder: Recorder, backend: NLPBackend) -> int:
 def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str = "logchol", floor: float = 1e-2,
             polish: int = 50, regularisation: float = 1e-4, margin: float = DEFAULT_POLICY.nlp, restarts: int = 1,
             stall: int = 300, candidates: int = 5, cache: bool = True, scale_means: float = 1.0,
-            resume: dict | None = None, polish_retry: int = POLISH_RETRY) -> Outcome:
+            resume: dict | None = None, polish_retry: int = POLISH_RETRY,
+            first_stage_options: dict | None = None) -> Outcome:
     """``backend``'s solver from the problem's start (module doc); ``scale_means``
     != 1 solves the first stage with the means scaled (:mod:`.nlp_scaled`);
     ``resume``: an earlier answer's first-stage state (:mod:`.nlp_resume`),
@@ -257,7 +258,8 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     if problem.out_of_time():                      # the warm start used the budget up
         return Outcome("time_limit", f"{STATUSES['time_limit']} (before {backend.name} started)", None,
                        backend.name)
-    opts = backend.options(problem.solver_options, problem.tol, formulation)
+    # the first stage's own solver options go over the run's (the polish keeps the run's)
+    opts = backend.options({**problem.solver_options, **(first_stage_options or {})}, problem.tol, formulation)
     bad = backend.check_options(opts)
     if bad:
         raise ValidationError("solver_options", bad)

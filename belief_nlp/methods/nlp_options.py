@@ -18,6 +18,16 @@ __all__ = ["nlp_options", "POLISH_RETRY"]
 POLISH_RETRY = 4
 
 
+def _check_stage_options(v) -> str | None:
+    """``first_stage_options``: None or a dict of option names to numbers, strings or bools."""
+    if v is None:
+        return None
+    if not isinstance(v, dict) or not all(isinstance(k, str) for k in v):
+        return "must be a dict of solver option names to values"
+    bad = [k for k, x in v.items() if not isinstance(x, (str, bool, int, float))]
+    return f"option {bad[0]!r} must be a number, a string or a bool" if bad else None
+
+
 def nlp_options(solver: str) -> dict[str, Option]:
     """The options every NLP method takes (the keywords of :func:`run_nlp`)."""
     return {
@@ -38,6 +48,9 @@ def nlp_options(solver: str) -> dict[str, Option]:
         "polish_retry": Option(POLISH_RETRY, "re-plans (with resume) that skip the polish after one whose polish "
                                              "did not lower its answer, while the first stage's answer is below "
                                              "the warm start (0: never skip)", count),
+        "first_stage_options": Option(None, f"{solver} options of the first stage only, over solver_options "
+                                            "(e.g. IPOPT's {'mu_min': 3e-6}: docs/numerics.md, \"The first "
+                                            "stage's barrier floor\")", _check_stage_options),
         "resume": Option(None, "an earlier answer's first-stage state (SmoothResult.resume) to start that stage "
                                "from, on the same scenario and K (bn.replan passes it; used by solvers that take "
                                "initial multipliers: IPOPT)", nlp_resume.check),
