@@ -54,3 +54,13 @@ def test_bad_values_are_refused_naming_the_field(small_start, value, words):
     with pytest.raises(bn.ValidationError) as err:
         bn.smooth(sc, ws, method="ipopt", first_stage_options=value)
     assert err.value.field == "first_stage_options" and words in str(err.value)
+
+
+def test_an_option_the_solver_refuses_is_named_as_a_first_stage_option(small_start):
+    sc, ws = small_start
+    with pytest.raises(bn.ValidationError) as err:
+        bn.smooth(sc, ws, method="ipopt", first_stage_options={"mu_minimum": 1e-6})
+    assert err.value.field == "first_stage_options" and "mu_minimum" in str(err.value)
+    with pytest.raises(bn.ValidationError) as err:
+        bn.smooth(sc, ws, method="ipopt", solver_options={"mu_minimum": 1e-6}, first_stage_options={"mu_min": 1e-6})
+    assert err.value.field == "solver_options"

@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import time
 from typing import Any, Callable
 
@@ -329,6 +330,12 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
                                   offset=problem.iterations, duals=first.duals if backend.warm_duals else None,
                                   prefix=prefix, **common)
             stages.append(second)
+    except ValidationError as exc:
+        # an option of the first stage's own that the solver refused: name that field
+        named = (re.search(rf"\b{re.escape(str(k).split('.')[-1])}\b", exc.problem) for k in first_stage_options or {})
+        if exc.field == "solver_options" and any(named):
+            raise ValidationError("first_stage_options", exc.problem) from None
+        raise
     finally:                  # also when a solver refused its options (ValidationError)
         if bar is not None:
             bar.close()
