@@ -259,12 +259,14 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     if problem.out_of_time():                      # the warm start used the budget up
         return Outcome("time_limit", f"{STATUSES['time_limit']} (before {backend.name} started)", None,
                        backend.name)
-    # the first stage's own solver options go over the run's (the polish keeps the run's)
-    opts = backend.options({**problem.solver_options, **(first_stage_options or {})}, problem.tol, formulation)
-    bad = backend.check_options(opts)
-    if bad:
-        raise ValidationError("solver_options", bad)
-    rescue_opts = backend.options(problem.solver_options, problem.tol, "rescue") \
+    # the first stage's own solver options go over the run's in all its attempts (the polish keeps the run's)
+    first_opts = {**problem.solver_options, **(first_stage_options or {})}
+    opts = backend.options(first_opts, problem.tol, formulation)
+    for field, checked in (("solver_options", problem.solver_options), ("first_stage_options", first_opts)):
+        bad = backend.check_options(backend.options(checked, problem.tol, formulation))
+        if bad:
+            raise ValidationError(field, bad)
+    rescue_opts = backend.options(first_opts, problem.tol, "rescue") \
         if "rescue" in backend.stage_options and formulation == "logchol" else None
     # the plug-in's own limit is set out of reach (a constant keeps the cache
     # key stable); the recorder enforces the run's budget; a user's
