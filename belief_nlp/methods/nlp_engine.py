@@ -250,7 +250,8 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     ``resume``: an earlier answer's first-stage state (:mod:`.nlp_resume`),
     the first stage's start when it fits (same graph, plug-in and floor) --
     and the usual first stage from the warm start when that solve does not
-    end converged and exactly safe."""
+    end converged and exactly safe. ``first_stage_options``: the plug-in's
+    options of the first stage's attempts only, over the run's."""
     if problem.model.data.alpha == 0:
         # measured: IPOPT stopped on NaN (Invalid_Number_Detected) after 180 iterations, twice
         raise ValidationError("alpha", f"must be > 0 for {backend.name}: with alpha = 0 sensing costs nothing and "
@@ -262,7 +263,9 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     # the first stage's own solver options go over the run's in all its attempts (the polish keeps the run's)
     first_opts = {**problem.solver_options, **(first_stage_options or {})}
     opts = backend.options(first_opts, problem.tol, formulation)
-    for field, checked in (("solver_options", problem.solver_options), ("first_stage_options", first_opts)):
+    checks = [("solver_options", problem.solver_options)] + ([("first_stage_options", first_opts)]
+                                                             if first_stage_options else [])
+    for field, checked in checks:
         bad = backend.check_options(backend.options(checked, problem.tol, formulation))
         if bad:
             raise ValidationError(field, bad)
