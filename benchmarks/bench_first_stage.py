@@ -25,14 +25,14 @@ import numpy as np
 
 import belief_nlp as bn
 
-from bench_nlp_speed import _case, _scenarios
+from bench_nlp_speed import _case, _run, _scenarios
 
 HERE = Path(__file__).resolve().parent / "results"
 
 
-def _smooth(sc, ws, method: str, alpha: float, options: dict):
-    kw = {"ipopt_options": {"first_stage_options": options}} if method == "auto" else {"first_stage_options": options}
-    return bn.smooth(sc, ws, method=method, alpha=alpha, **kw)
+def _kw(method: str, options: dict) -> dict:
+    """The smooth() keywords that hand ``options`` to ``method``'s first stage."""
+    return {"ipopt_options": {"first_stage_options": options}} if method == "auto" else {"first_stage_options": options}
 
 
 def main() -> None:
@@ -60,15 +60,12 @@ def main() -> None:
         for fam, s, sc, ws in cases:
             if id(sc) not in warmed:
                 for a in (0.1, 1.0):
-                    _smooth(sc, ws, args.method, a, options)
+                    bn.smooth(sc, ws, method=args.method, alpha=a, **_kw(args.method, options))
                 warmed.add(id(sc))
             for a in (0.1, 1.0):
-                load = os.getloadavg()[0]
-                t = time.perf_counter()
-                r = _smooth(sc, ws, args.method, a, options)
-                rows.append({"family": fam, "seed": s, "alpha": a, "iterations": int(r.stats.get("iter_count", r.nit)),
-                             "wall_s": time.perf_counter() - t, "cost": float(r.cost), "status": r.status,
-                             "verified": bool(r.safe), "answered_by": r.method, "loadavg": load})
+                # bench_nlp_speed's record of a call (wall, CPU, iterations, cost, verified by bn.verify)
+                rows.append({"family": fam, "seed": s, "alpha": a,
+                             **_run(sc, ws, args.method, a, **_kw(args.method, options))})
         res["cases"][name] = rows
         its, wall = [x["iterations"] for x in rows], [x["wall_s"] for x in rows]
         summary = {"cases": len(rows), "median_iterations": float(np.median(its)), "total_iterations": int(sum(its)),
