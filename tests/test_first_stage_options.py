@@ -39,9 +39,22 @@ def test_they_reach_the_first_stage_only(monkeypatch, small_start):
 def test_auto_hands_them_to_its_ipopt_stage(monkeypatch, small_start):
     sc, ws = small_start
     res, seen = _stage_options(monkeypatch, sc, ws, method="auto", alpha=0.1,
-                               ipopt_options={"first_stage_options": {"mu_min": 3e-6}})
-    assert dict(seen)["logchol"]["mu_min"] == 3e-6
+                               ipopt_options={"first_stage_options": {"mu_min": 1e-7}})
+    assert dict(seen)["logchol"]["mu_min"] == 1e-7                # not the default (3e-6)
     assert res.safe and res.method.startswith("auto")
+
+
+def test_a_resumed_first_stage_keeps_its_floor_unless_the_user_sets_one(monkeypatch, small_start):
+    """A first stage resumed from an earlier answer runs with the backend's
+    resume options (barrier floor 1e-7, below its mu_init 1e-6), not the
+    usual stage's 3e-6; the user's own first-stage floor wins over both."""
+    sc, ws = small_start
+    state = {**bn.smooth(sc, ws, method="ipopt", alpha=1.0).resume, "polish": None}     # the first stage's alone
+    for given, floor in ((None, 1e-7), ({"mu_min": 2e-7}, 2e-7)):
+        res, seen = _stage_options(monkeypatch, sc, ws, method="ipopt", alpha=1.0, resume=state,
+                                   first_stage_options=given)
+        assert res.stats["resumed_stage"] == "first" and res.safe
+        assert [o["mu_min"] for f, o in seen if f == "logchol"] == [floor]
 
 
 @pytest.mark.parametrize("value, words", [

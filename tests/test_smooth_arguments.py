@@ -31,6 +31,9 @@ def small():
     ({"solver_options": "x"}, "solver_options"),
     ({"solver_options": {"no_such_setting": 1}, "method": "ccp"}, "solver_options"),
     ({"monotone_tol": float("nan"), "method": "ccp"}, "monotone_tol"), ({"rho": -1.0, "method": "ccp"}, "rho"),
+    # ints no float can hold (the fuzz test's 10**400 overflowed inside the run)
+    ({"alpha": 10**400}, "alpha"), ({"monotone_tol": 10**400, "method": "ccp"}, "monotone_tol"),
+    ({"floor": 10**400, "method": "ipopt"}, "floor"),
     ({"max_ter": 3}, "max_ter"), ({"callback": 3}, "callback"),
     ({"method": "newton"}, "method"), ({"method": 3}, "method"),
     ({"formulation": "nope", "method": "ipopt"}, "formulation"),

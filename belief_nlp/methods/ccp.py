@@ -51,7 +51,7 @@ from .ccp_steps import CHI2_MARGIN, compiled_step, conic_step_of, frozen_step
 from .ccp_cascade import (SOLVER_DEFAULTS, LazyCascade, _check_solver, _check_solver_options, _checked, _solve,
                           _StepAnswers, solver_cascade)
 from ..smoother.context import Outcome, SmoothingProblem
-from ..smoother.registry import Method, Option, nonneg, register
+from ..smoother.registry import Method, Option, nonneg, real, register
 from ..smoother.result import STATUSES, IterationRecord
 
 __all__ = ["run", "compiled_step", "solver_cascade", "usable_solvers", "initial_rho", "SOLVER_DEFAULTS",
@@ -408,7 +408,7 @@ class _LazyStep:
 
 
 def _positive(v: Any) -> str | None:
-    return None if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 else "must be a number > 0"
+    return None if (real(v) or 0) > 0 else "must be a number > 0"
 
 
 def _callable_or_none(v: Any) -> str | None:

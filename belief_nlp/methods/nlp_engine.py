@@ -298,7 +298,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
                 before, resumed = direct, "yes"
         if before is None and ours:
             before = _resumed(problem, backend, resume, opts, floor, max_iter - (direct.used if direct else 0),
-                              common, prefix)
+                              common, prefix, user=first_opts)
             resumed = "does not fit" if before is None else "yes" if before.answer is not None else "fell back"
             if direct is not None and before is not None:
                 before.attempts, before.used = direct.attempts + before.attempts, direct.used + before.used
@@ -371,13 +371,14 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
 
 
 def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts: dict, floor: float,
-             max_iter: int, common: dict, prefix: int) -> Stage | None:
+             max_iter: int, common: dict, prefix: int, user: dict) -> Stage | None:
     """The first stage from ``resume``'s variables and multipliers, with the
-    backend's ``resume_options`` (where the user's solver options are silent);
+    backend's ``resume_options`` where the user's options of that stage
+    (``user``: solver options with the first stage's own over them) are silent;
     one attempt of at most :data:`RESUME_LIMIT` K iterations; on ``resume``'s
     graph with its first ``prefix`` steps frozen at the problem's start
     (None when they cannot be: :func:`belief_nlp.model.nlp_prefix.frozen`)."""
-    own = {k: v for k, v in backend.resume_options.items() if k not in problem.solver_options}
+    own = {k: v for k, v in backend.resume_options.items() if k not in user}
 
     def bounds(nlp: NLPProblem, lay: Layout) -> tuple:
         # the frozen variables are fixed by their bounds: clipping sets them

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from ..model.nlp_form import FORMULATIONS
 from ..smoother.policy import DEFAULT_POLICY
-from ..smoother.registry import Option, count, nonneg
+from ..smoother.registry import Option, count, nonneg, real
 from . import nlp_resume
 
 __all__ = ["nlp_options", "POLISH_RETRY"]
@@ -34,8 +34,7 @@ def nlp_options(solver: str) -> dict[str, Option]:
         "formulation": Option("logchol", f"NLP variables: one of {FORMULATIONS}",
                               lambda v: None if v in FORMULATIONS else f"must be one of {FORMULATIONS}"),
         "floor": Option(1e-2, "smallest diagonal entry of L in the 'logchol' stage (scaled units)",
-                        lambda v: None if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0
-                        else "must be a number > 0"),
+                        lambda v: None if (real(v) or 0) > 0 else "must be a number > 0"),
         "polish": Option(50, "iteration cap of the polish after the 'logchol' stage (0: none)", count),
         "regularisation": Option(1e-4, "weight of the certificates' proximal term", nonneg),
         "margin": Option(DEFAULT_POLICY.nlp, "relative clearance margin kept in the NLP's collision rows", nonneg),
@@ -49,8 +48,9 @@ def nlp_options(solver: str) -> dict[str, Option]:
                                              "did not lower its answer, while the first stage's answer is below "
                                              "the warm start (0: never skip)", count),
         "first_stage_options": Option(None, f"{solver} options of the first stage only, over solver_options "
-                                            "(e.g. IPOPT's {'mu_min': 3e-6}: docs/numerics.md, \"The first "
-                                            "stage's barrier floor\")", _check_stage_options),
+                                            "(e.g. IPOPT's {'mu_min': 1e-7}, its barrier floor before 3e-6: "
+                                            "docs/numerics.md, \"The first stage's barrier floor\")",
+                                      _check_stage_options),
         "resume": Option(None, "an earlier answer's first-stage state (SmoothResult.resume) to start that stage "
                                "from, on the same scenario and K (bn.replan passes it; used by solvers that take "
                                "initial multipliers: IPOPT)", nlp_resume.check),

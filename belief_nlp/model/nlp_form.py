@@ -42,7 +42,7 @@ from ..errors import ValidationError
 from . import terms
 from .data import Layout, ProblemData
 from .evaluate import BeliefModel
-from .nlp_matrices import _lower, _psd_factor, _sym_inv, _symmetric, _tri_index, lower_stack
+from .nlp_matrices import _lower, _psd_factor, _sym_inv, _symmetric, _tri_index, lower_stack, without_columns
 
 __all__ = ["NLPProblem", "build_nlp", "FORMULATIONS"]
 
@@ -180,21 +180,26 @@ class NLPProblem:
     def switch_off(self, z: np.ndarray, lbz: np.ndarray, ubz: np.ndarray, floor: float,
                    slack: float = 0.1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Copies of the "cholesky" values ``z`` and bounds with every column
-        of L whose norm is at most floor (1 + slack) fixed at 0 (and a
-        budget's levels held at their values, but those of the pairs the
-        switch-off breaks): :meth:`without_sensing` of packed
-        values, e.g. an earlier polish's answer, whose switched-off columns
-        are 0 and stay off."""
+        of L whose diagonal is at most floor (1 + slack) fixed at 0, the
+        sensing below such a diagonal moved onto the later columns
+        (:func:`.nlp_matrices.without_columns`), and a budget's levels held
+        at their values, but those of the pairs the switch-off breaks:
+        :meth:`without_sensing` of packed values, e.g. an earlier polish's
+        answer, whose switched-off columns are 0 and stay off."""
         tri, d, K, off = self.info["tri"], self.info["d"], self.info["K"], self.info["sensing_offset"]
         z0, lbz, ubz = np.array(z, float), np.array(lbz, float), np.array(ubz, float)
         budget = bool(self.info.get("n_budget"))
         before = self.margin_values(z0)[0] if budget else None
-        # the "cholesky" NLP holds L's entries: column norms without factoring S_k again
-        L = lower_stack(z0[off:off + K * len(tri)].reshape(K, len(tri)), tri, d)
-        off_cols = np.linalg.norm(L, axis=1) <= floor * (1 + slack)        # (K, d)
+        # the "cholesky" NLP holds L's entries; the log-Cholesky stage's floor bounds
+        # the diagonal (L_ii = exp(w_i) >= floor), so the diagonal says what is off
+        t = len(tri)
+        L = lower_stack(z0[off:off + K * t].reshape(K, t), tri, d)
+        off_cols = np.abs(np.diagonal(L, axis1=1, axis2=2)) <= floor * (1 + slack)        # (K, d)
+        L = without_columns(L, off_cols)
+        z0[off:off + K * t] = L[:, [i for i, _ in tri], [j for _, j in tri]].ravel()
         col_of = np.array([j for _, j in tri])
         idx = off + np.flatnonzero(off_cols[:, col_of].ravel())           # entries of switched-off columns
-        z0[idx] = lbz[idx] = ubz[idx] = 0.0
+        lbz[idx] = ubz[idx] = 0.0
         if budget:
             # the levels stay where the first stage allocated them, except those of
             # the pairs whose rows (two per pair, ordered as the levels) the switch-off

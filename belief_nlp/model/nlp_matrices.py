@@ -28,6 +28,28 @@ def lower_stack(v: np.ndarray, tri: list, d: int) -> np.ndarray:
     return M
 
 
+def without_columns(L: np.ndarray, off: np.ndarray) -> np.ndarray:
+    """Lower-triangular factors (n, d, d) with the columns ``off`` (n, d)
+    switched off: the Cholesky factor of L L^T that skips those columns
+    (each on column j takes what is left of S_jj and below after the
+    earlier on columns). A switched-off column whose entries below the
+    diagonal are 0 leaves the other columns as they are (copied, not
+    recomputed); one with entries below moves that sensing onto the later
+    columns, so S on the other directions is kept (a column's diagonal at
+    the floor with L_ij != 0 below it left the polish a rotation of
+    (L_ij, L_ii) that does not change S: IPOPT crept along it)."""
+    out = np.where(off[:, None, :], 0.0, L)
+    moved = off & (np.abs(np.tril(L, -1)).sum(axis=1) > 0)        # (n, d): sensing below a column switched off
+    for n in np.flatnonzero(moved.any(axis=1)):
+        S, Ln = L[n] @ L[n].T, np.zeros_like(L[n])
+        for j in np.flatnonzero(~off[n]):
+            v = S[j:, j] - Ln[j:, :j] @ Ln[j, :j]
+            if v[0] > 0:
+                Ln[j:, j] = v / np.sqrt(v[0])
+        out[n] = Ln
+    return out
+
+
 def _symmetric(v: ca.SX, tri: list, d: int) -> ca.SX:
     M = ca.SX.zeros(d, d)
     for p, (i, j) in enumerate(tri):

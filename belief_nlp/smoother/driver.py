@@ -38,7 +38,7 @@ from ..model import BeliefModel, Layout
 from ..path import BeliefPath
 from ..scenario import Scenario
 from .context import Outcome, SmoothingProblem
-from .registry import DEFAULT_METHOD, Method, resolve_method
+from .registry import DEFAULT_METHOD, Method, real, resolve_method
 from .result import STATUSES, SmoothResult
 from .budget_start import budget_warm_start
 from .warmstart import WarmStart, warm_start
@@ -71,7 +71,7 @@ def _is_int(v: Any) -> bool:
 
 
 def _is_num(v: Any) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+    return real(v) is not None
 
 
 def _check_args(max_iter, tol, alpha, time_limit, K, solver_options, callback) -> None:

@@ -17,10 +17,12 @@ import inspect
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+import numpy as np
+
 from ..errors import ValidationError
 
 __all__ = ["DEFAULT_METHOD", "Option", "Method", "register", "available_methods", "available_solvers", "get_method",
-           "resolve_method", "count", "nonneg"]
+           "resolve_method", "count", "nonneg", "real"]
 
 # CasADi nlpsol plug-ins a method may run (the ones CasADi's wheels can ship)
 _NLP_SOLVERS = ("ipopt", "fatrop", "uno", "madnlp", "sqpmethod", "blocksqp", "knitro", "snopt", "worhp", "bonmin")
@@ -34,9 +36,22 @@ def count(v: Any) -> str | None:
     return None if isinstance(v, int) and not isinstance(v, bool) and v >= 0 else "must be an integer >= 0"
 
 
+def real(v: Any) -> float | None:
+    """``v`` as a float when it is a number (not a bool) a float can hold;
+    None otherwise (an int beyond 1.8e308 passed Python's comparisons and
+    overflowed later, in the solver's arithmetic: found by the fuzz test)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        return None
+    try:
+        return float(v)
+    except OverflowError:
+        return None
+
+
 def nonneg(v: Any) -> str | None:
     """An :class:`Option` check: a number >= 0 (not a bool)."""
-    return None if isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0 else "must be a number >= 0"
+    r = real(v)
+    return None if r is not None and r >= 0 else "must be a number >= 0"
 
 
 @dataclass(frozen=True)
