@@ -42,7 +42,7 @@ from ..errors import ValidationError
 from . import terms
 from .data import Layout, ProblemData
 from .evaluate import BeliefModel
-from .nlp_matrices import _lower, _psd_factor, _sym_inv, _symmetric, _tri_index, lower_stack, without_columns
+from .nlp_matrices import _lower, _psd_factor, _sym_inv, _symmetric, _tri_index, lower_stack, switched_off
 
 __all__ = ["NLPProblem", "build_nlp", "FORMULATIONS"]
 
@@ -179,23 +179,18 @@ class NLPProblem:
 
     def switch_off(self, z: np.ndarray, lbz: np.ndarray, ubz: np.ndarray, floor: float,
                    slack: float = 0.1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Copies of the "cholesky" values ``z`` and bounds with every column
-        of L whose diagonal is at most floor (1 + slack) fixed at 0, the
-        sensing below such a diagonal moved onto the later columns
-        (:func:`.nlp_matrices.without_columns`), and a budget's levels held
-        at their values, but those of the pairs the switch-off breaks:
-        :meth:`without_sensing` of packed values, e.g. an earlier polish's
-        answer, whose switched-off columns are 0 and stay off."""
+        """Copies of the "cholesky" values ``z`` and bounds with the sensing
+        that ``z`` holds at the floor switched off (columns of L fixed at 0:
+        :func:`.nlp_matrices.switched_off` at level floor (1 + slack)), and
+        a budget's levels held at their values, but those of the pairs the
+        switch-off breaks: :meth:`without_sensing` of packed values, e.g. an
+        earlier polish's answer, whose switched-off columns are 0 and stay off."""
         tri, d, K, off = self.info["tri"], self.info["d"], self.info["K"], self.info["sensing_offset"]
         z0, lbz, ubz = np.array(z, float), np.array(lbz, float), np.array(ubz, float)
         budget = bool(self.info.get("n_budget"))
         before = self.margin_values(z0)[0] if budget else None
-        # the "cholesky" NLP holds L's entries; the log-Cholesky stage's floor bounds
-        # the diagonal (L_ii = exp(w_i) >= floor), so the diagonal says what is off
         t = len(tri)
-        L = lower_stack(z0[off:off + K * t].reshape(K, t), tri, d)
-        off_cols = np.abs(np.diagonal(L, axis1=1, axis2=2)) <= floor * (1 + slack)        # (K, d)
-        L = without_columns(L, off_cols)
+        L, off_cols = switched_off(lower_stack(z0[off:off + K * t].reshape(K, t), tri, d), floor * (1 + slack))
         z0[off:off + K * t] = L[:, [i for i, _ in tri], [j for _, j in tri]].ravel()
         col_of = np.array([j for _, j in tri])
         idx = off + np.flatnonzero(off_cols[:, col_of].ravel())           # entries of switched-off columns

@@ -28,26 +28,37 @@ def lower_stack(v: np.ndarray, tri: list, d: int) -> np.ndarray:
     return M
 
 
-def without_columns(L: np.ndarray, off: np.ndarray) -> np.ndarray:
-    """Lower-triangular factors (n, d, d) with the columns ``off`` (n, d)
-    switched off: the Cholesky factor of L L^T that skips those columns
-    (each on column j takes what is left of S_jj and below after the
-    earlier on columns). A switched-off column whose entries below the
-    diagonal are 0 leaves the other columns as they are (copied, not
-    recomputed); one with entries below moves that sensing onto the later
-    columns, so S on the other directions is kept (a column's diagonal at
-    the floor with L_ij != 0 below it left the polish a rotation of
-    (L_ij, L_ii) that does not change S: IPOPT crept along it)."""
+def switched_off(L: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
+    """Lower-triangular factors (n, d, d) with their floor-level sensing
+    switched off, and which columns are off (n, d): the polish's start
+    (NLPProblem.switch_off). A column whose norm is at most ``level`` is
+    zeroed. A step with more eigenvalues of S = L L^T at most level^2 than
+    such columns (a diagonal at the floor with sensing below it, e.g.
+    L = [[floor, 0], [-0.36, 0.63]]) is re-factored instead: S without its
+    floor-level eigen-directions, as a lower-triangular factor whose last
+    columns (one per dropped direction) are 0. Kept on, such a column let the polish
+    creep along a rotation of (L_21, L_22) that leaves S unchanged as
+    L_11 -> 0; pinned to the axes (the column zeroed, its sensing moved to
+    the next one) the polish could not tilt the sensing direction and ended
+    up to 6e-5 costlier (docs/numerics.md, "The polish's switch-off")."""
+    d = L.shape[-1]
+    off = np.linalg.norm(L, axis=1) <= level                          # (n, d): column norms
     out = np.where(off[:, None, :], 0.0, L)
-    moved = off & (np.abs(np.tril(L, -1)).sum(axis=1) > 0)        # (n, d): sensing below a column switched off
-    for n in np.flatnonzero(moved.any(axis=1)):
-        S, Ln = L[n] @ L[n].T, np.zeros_like(L[n])
-        for j in np.flatnonzero(~off[n]):
-            v = S[j:, j] - Ln[j:, :j] @ Ln[j, :j]
-            if v[0] > 0:
-                Ln[j:, j] = v / np.sqrt(v[0])
-        out[n] = Ln
-    return out
+    S = L @ L.transpose(0, 2, 1)
+    n_floor = (np.linalg.eigvalsh(S) <= level ** 2).sum(axis=1)
+    for n in np.flatnonzero(n_floor > off.sum(axis=1)):
+        w, U = np.linalg.eigh(S[n])
+        keep = w > level ** 2
+        r = int(keep.sum())
+        # S without them is B B^T (B = U_r sqrt(w_r), d x r); B^T = Q R gives the
+        # lower-trapezoidal R^T with R^T R = B B^T (backward stable, no pivots):
+        # its first r columns on, the rest off
+        B = U[:, keep] * np.sqrt(w[keep])
+        R = np.linalg.qr(B.T, mode="r")
+        R *= np.where(np.diag(R) < 0, -1.0, 1.0)[:, None]
+        out[n], off[n] = 0.0, np.arange(d) >= r
+        out[n][:, :r] = R.T
+    return out, off
 
 
 def _symmetric(v: ca.SX, tri: list, d: int) -> ca.SX:
