@@ -249,3 +249,13 @@ def test_path_file_with_a_nan_names_the_field(tmp_path, paper_multi_path):
 ])
 def test_planner_arguments(paper, kwargs, field):
     raises_fast(lambda: bn.plan(paper, **kwargs), field, seconds=0.5)
+
+
+def test_a_plans_risk_record_with_a_number_no_float_holds_is_refused():
+    """A plan file's risk record read back (PlanResult.load checks it): a
+    400-digit budget (JSON holds it) is our error naming the field, not an
+    OverflowError from math.isfinite."""
+    from belief_nlp.planner.result import _check_risk
+
+    record = {"budget": 10 ** 400, "collision_chi2": 4.6, "target_chi2": 4.6, "bound": None, "rounds": []}
+    raises_fast(lambda: _check_risk(record), "risk.budget", "finite number")

@@ -17,6 +17,7 @@ from .._limits import check_npz, load_json, parse_document
 from ..belief import NATS_PER_BIT
 from ..errors import ScenarioFileError, ValidationError
 from ..path import BeliefPath, _alpha, _values_equal
+from ..scenario_validate import _finite
 
 __all__ = ["PlanResult", "TreeView"]
 
@@ -110,8 +111,7 @@ def _check_risk(risk: Any) -> None:
         raise ValidationError("risk", f"must be a dict or None, got {type(risk).__name__}")
     for key in ("budget", "collision_chi2", "target_chi2", "bound"):
         v = risk.get(key)
-        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)) and \
-                not (key == "bound" and v is None):
+        if not _finite(v) and not (key == "bound" and v is None):
             raise ValidationError(f"risk.{key}", f"must be a finite number, got {v!r:.40}")
     if not isinstance(risk.get("rounds"), list):
         raise ValidationError("risk.rounds", "must be a list of planning rounds")
