@@ -128,15 +128,13 @@ def test_a_receding_loop_reuses_the_graph_and_answers_as_a_fresh_horizon(plan10)
 
 
 def test_two_steps_at_once(plan10):
-    """advance = 2 freezes two steps at once: the answer of the cold re-plan
-    (costs to 1e-5, as for every step of the loop above: two converged IPOPT
-    routes to one local optimum, measured 1.0e-6 apart)."""
+    """advance = 2 freezes two steps at once."""
     sc, previous = plan10
     moved = _moved(sc, previous, 2, np.random.default_rng(1))
     r = bn.replan(moved, previous, advance=2, **KW)
     assert r.stats["resumed"] == "yes" and r.status == "converged" and bn.verify(moved, r.path).safe
     assert r.cost == pytest.approx(bn.replan(moved, dataclasses.replace(previous, resume=None), advance=2,
-                                             **KW).cost, rel=1e-5)
+                                             **KW).cost, rel=1e-6)
 
 
 def test_when_the_frozen_solve_fails_the_usual_stage_runs_on_the_same_graph(plan10, resume_fails):
@@ -150,7 +148,7 @@ def test_when_the_frozen_solve_fails_the_usual_stage_runs_on_the_same_graph(plan
     assert back.stats["resumed"] == "fell back" and back.status == "converged" and back.safe
     assert back.stats["build"] in ("memory", "built (derivatives shared)")
     assert back.resume["offset"] == 2                # the state of the graph that answered
-    assert back.cost == pytest.approx(ref.cost, rel=1e-5)          # one optimum, two routes (above)
+    assert back.cost == pytest.approx(ref.cost, rel=1e-6)
     assert bn.verify(moved, back.path).safe
 
 
@@ -321,8 +319,7 @@ def test_autos_default_skips_the_ccp_polish_after_a_resumed_polish(plan10):
     """By default auto's CCP polish does not run after an IPOPT stage that
     resumed and ended on its converged exact polish (a loop's re-plan: the
     polish changed the cost by at most 1.4e-5 there); the answer is IPOPT's,
-    verified, within 5e-4 of the polished one (measured 1.6e-4 since the
-    first stage's barrier floor is 3e-6, 1.4e-5 before)."""
+    verified, within 1e-4 of the polished one."""
     sc, previous = plan10
     first = bn.smooth(sc, previous.path, method="auto", alpha=1.0, ccp_polish=10)
     assert first.stats["stages"] == ["ipopt", "ccp polish"]
@@ -333,7 +330,7 @@ def test_autos_default_skips_the_ccp_polish_after_a_resumed_polish(plan10):
     assert r.status == "converged" and bn.verify(moved, r.path).safe
     polished = bn.replan(moved, first, advance=1, alpha=1.0, ccp_polish=10)
     assert polished.stats["stages"] == ["ipopt", "ccp polish"]
-    assert polished.cost <= r.cost <= polished.cost * (1 + 5e-4)
+    assert polished.cost <= r.cost <= polished.cost * (1 + 1e-4)
 
 
 def test_autos_ccp_answer_keeps_ipopts_state_and_the_frozen_step(plan10, monkeypatch):
