@@ -107,3 +107,35 @@ def test_the_recorder_stops_an_iterate_far_outside_the_box():
     rec.bind(view)
     fixed = np.flatnonzero(view.lbz == view.ubz)
     assert rec._m.size and not np.intersect1d(rec._m, fixed).size
+
+
+def test_the_recorder_stops_an_attempt_that_walks_infeasible():
+    """WALK consecutive iterates infeasible by more than WALK_VIOLATION end
+    the attempt ("walked", restarted inside the box by the engine); one
+    feasible enough iterate in between starts the count again; without
+    ``runaway`` nothing stops."""
+    from belief_nlp.methods.nlp_recorder import WALK, WALK_VIOLATION, Recorder
+
+    sc = bn.load_scenario("tutorial")
+    nlp = build_nlp(BeliefModel(sc, 8, 1.0), "logchol")
+    lay = bn.warm_start(sc, bn.plan(sc, seed=0).path, K=8)
+    z = nlp.pack(BeliefModel(sc, 8, 1.0).from_path(lay.path, lay.lam))
+    rec = Recorder(nlp, keep=1, bar=None)
+    f, g = nlp.fg(z, nlp.anchor(nlp.unpack(z)))
+    g = np.asarray(g).ravel()
+    far = g.copy()
+    far[0] = nlp.lbg[0] - 2 * WALK_VIOLATION                  # a collision row violated by 20
+
+    def run(rows: list, runaway: bool = True) -> int:
+        """Feed ``rows`` (after the start); the 1-based row that stopped, or 0."""
+        rec.reset(keep=1, bar=None, stall=0, runaway=runaway)
+        rec.begin(nlp.anchor(nlp.unpack(z)), budget=10_000, deadline=None)
+        rec._take(z, float(f), g)
+        for i, gv in enumerate(rows, 1):
+            if rec._take(z, float(f), gv):
+                return i
+        return 0
+
+    assert run([far] * WALK) == WALK and rec.stop_reason == "walked"
+    assert run([far] * (WALK - 1) + [g] + [far] * (WALK - 1)) == 0 and rec.stop_reason == ""
+    assert run([far] * (2 * WALK), runaway=False) == 0

@@ -34,7 +34,9 @@ restarted from the best exactly safe point so far. For a backend with
 Kalman-feasible point satisfies; docs/numerics.md, "The Kalman box") when
 there is no such point below the stage's start, when an iterate left the box
 tenfold (a lifted factor |M_ij| > 10 sqrt((W^-1)_ii): the recorder stops it,
-status "Left_Kalman_Box"), or when the stage converged above its start. A
+status "Left_Kalman_Box") or its iterates stayed infeasible by more than 10
+for 50 iterations (status "Infeasible_Walk", nlp_recorder.WALK), or when the
+stage converged above its start. A
 backend with ``stage_options["rescue"]`` (Uno: funnel-SQP; fatrop: mu_init
 1e-3, its one restart) restarts from the start with those options when
 nothing safe was found below it. The solver's last point is the answer when
@@ -196,7 +198,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: Stage, *
         if n_attempts > restarts or status == "time_limit" or stage.used >= max_iter or problem.stop_requested:
             break
         how, new_opts = "", None
-        if stage.best[1] is z_start or recorder.stop_reason == "left_box":
+        if stage.best[1] is z_start or recorder.stop_reason in ("left_box", "walked"):
             # nothing safe below the start, or a runaway: again inside the Kalman box (docs/numerics.md,
             # "The Kalman box"), or with the plug-in's rescue options; else the stage ends
             if can_box and not boxed:

@@ -20,6 +20,14 @@ _MAX, _MIN = np.maximum.reduce, np.minimum.reduce
 #: 0.99-0.999 the runs that failed passed 65-2e6 (docs/numerics.md, "The Kalman box")
 RUNAWAY = 10.0
 
+#: an attempt whose iterates violate the rows by more than WALK_VIOLATION (scaled
+#: units) for WALK consecutive iterations ends too, as a runaway does ("walked"):
+#: on the issue-21 protocol (K = 20 / 40 / 80, 104 first stages, all converged) the
+#: longest such run was 14 iterations; an attempt at K = 40 that wandered through
+#: restoration for 483 iterations (random-polygons map 5, alpha 0.1, then converging
+#: in 92 inside the box) had 254 (docs/numerics.md, "The first stage's barrier floor")
+WALK, WALK_VIOLATION = 50, 10.0
+
 
 class Recorder(ca.Callback):
     """Iteration callback of a CasADi nlpsol: history, best feasible iterates, progress.
@@ -46,6 +54,7 @@ class Recorder(ca.Callback):
         self.stop_reason = ""
         self.stall = stall
         self.runaway = False                   # stop an iterate far outside the Kalman box (reset)
+        self.walk = 0                          # consecutive iterates violating the rows by > WALK_VIOLATION
         self.log_path: str | None = None       # the solver's log file, if its backend writes one
         self.best_cost = np.inf
         self.best_it = 0
@@ -84,7 +93,9 @@ class Recorder(ca.Callback):
     def reset(self, keep: int, bar, stall: int, runaway: bool = False) -> None:
         """Forget a previous solve (the recorder lives as long as its solver);
         ``runaway``: stop an attempt whose iterate leaves the Kalman box by
-        the factor RUNAWAY (then ``stop_reason`` is "left_box")."""
+        the factor RUNAWAY (then ``stop_reason`` is "left_box") or whose
+        iterates stay infeasible by WALK_VIOLATION for WALK iterations
+        ("walked")."""
         self.keep, self.bar, self.stall, self.runaway = keep, bar, stall, runaway
         self.calls = self.offset = 0
         self.rows, self.zs, self.pvs, self.best = [], [], [], []
@@ -103,6 +114,7 @@ class Recorder(ca.Callback):
         self.stop_reason = ""
         self.best_cost = np.inf
         self.best_it = 0
+        self.walk = 0
         self.t_last = time.perf_counter()
 
     def get_n_in(self):
@@ -231,6 +243,12 @@ class Recorder(ca.Callback):
             # runaway that ended in Infeasible_Problem_Detected or Invalid_Number_Detected
             # hundreds of iterations later; stop so a restart inside the box can solve
             self.stop_reason = "left_box"
+            return True
+        self.walk = self.walk + 1 if viol > WALK_VIOLATION else 0
+        if self.runaway and self.walk >= WALK:
+            # far from feasible for WALK iterations (seen: hundreds of restoration
+            # iterations before converging or failing); a restart inside the box finishes
+            self.stop_reason = "walked"
             return True
         if self.stall and feasible and self.calls - 1 - self.best_it >= self.stall:
             # feasible, but no feasible iterate has lowered the cost for `stall`

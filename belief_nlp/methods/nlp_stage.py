@@ -83,7 +83,7 @@ class Stage:
 
 
 STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded", "stalled": "Stalled",
-          "left_box": "Left_Kalman_Box"}
+          "left_box": "Left_Kalman_Box", "walked": "Infeasible_Walk"}
 
 
 def outcome(problem: SmoothingProblem, backend: NLPBackend, stages: list[Stage], max_iter: int) -> Outcome:
