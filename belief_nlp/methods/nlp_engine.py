@@ -336,6 +336,11 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
                                   max_iter=min(int(polish), max_iter - first.used), restarts=0,
                                   offset=problem.iterations, duals=first.duals if backend.warm_duals else None,
                                   prefix=prefix, **common)
+            if backend.warm_duals and _still_lowering(problem, second, int(polish)) \
+                    and first.used + second.used < max_iter and not problem.out_of_time() \
+                    and not problem.stop_requested:
+                _polish_further(problem, backend, second, first.answer[1], floor, polish_opts,
+                                min(int(polish), max_iter - first.used - second.used), prefix, common)
             stages.append(second)
     except ValidationError as exc:
         # an option of the first stage's own that the solver refused: name that field
@@ -370,6 +375,48 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         z, duals = (resume["z"], (resume["lam_x"], resume["lam_g"])) if first is direct else (first.z, first.duals)
         out.resume = nlp_resume.state(backend.plugin, key, floor, z, duals, prefix, polished, skip_next)
     return out
+
+
+#: a polish at its cap whose cost fell by more than POLISH_LOWERING (relative) over
+#: its last POLISH_TAIL iterations gets one more run of its cap from where it stopped
+#: (its variables, multipliers and switched-off sensing). Seen: a polish walking the
+#: means after a first stage at mu_min 3e-6 (notebook 03's case: 67 iterations to
+#: converge, 2.31369 at the cap of 50 against 2.31283); a polish creeping at its
+#: answer lowers its cost by < 1e-7 there (docs/numerics.md, "The first stage's
+#: barrier floor", the polish's cap)
+POLISH_TAIL, POLISH_LOWERING = 10, 1e-5
+
+
+def _still_lowering(problem: SmoothingProblem, polish: Stage, cap: int) -> bool:
+    """``polish`` stopped at its own cap while its cost was still falling
+    (the history's last POLISH_TAIL records, feasible or not)."""
+    if polish.status != STOPS["max_iter"] or polish.used < cap or polish.z is None or polish.duals is None:
+        return False
+    costs = [r.cost for r in problem.history[-polish.used:]]
+    if len(costs) <= POLISH_TAIL:
+        return False
+    before, now = costs[-POLISH_TAIL - 1], costs[-1]
+    return bool(np.isfinite(before) and np.isfinite(now) and before - now > POLISH_LOWERING * abs(now))
+
+
+def _polish_further(problem: SmoothingProblem, backend: NLPBackend, polish: Stage, start: Layout, floor: float,
+                    opts: dict, max_iter: int, prefix: int, common: dict) -> None:
+    """One more polish from where ``polish`` stopped, merged into it: its
+    attempts and iterations added, its answer (converged, exactly safe) or a
+    lower best point taken."""
+    z = polish.z
+    more = _solve_stage(problem, backend, Stage(), formulation="cholesky", floor=floor, opts=opts,
+                        bounds=lambda nlp, lay: nlp.switch_off(np.clip(z, nlp.lbz, nlp.ubz), nlp.lbz, nlp.ubz, floor),
+                        start=start, max_iter=max_iter, restarts=0, offset=problem.iterations,
+                        duals=polish.duals, prefix=prefix, **common)
+    polish.attempts += more.attempts
+    polish.used += more.used
+    polish.build_time += more.build_time
+    polish.status = more.status
+    if more.answer is not None:
+        polish.answer, polish.z, polish.duals, polish.solved = more.answer, more.z, more.duals, more.solved
+    if more.best is not None and (polish.best is None or more.best[0] < polish.best[0]):
+        polish.best = more.best
 
 
 def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts: dict, floor: float,
