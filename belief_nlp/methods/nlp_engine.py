@@ -399,16 +399,16 @@ def _still_lowering(problem: SmoothingProblem, polish: Stage, cap: int) -> bool:
     return bool(np.isfinite(before) and np.isfinite(now) and before - now > POLISH_LOWERING * abs(now))
 
 
-def _polish_further(problem: SmoothingProblem, backend: NLPBackend, polish: Stage, start: Layout, floor: float,
+def _polish_further(problem: SmoothingProblem, backend: NLPBackend, polish: Stage, anchor: Layout, floor: float,
                     opts: dict, max_iter: int, prefix: int, common: dict) -> None:
-    """One more polish from where ``polish`` stopped, merged into it: its
-    attempts and iterations added, its answer (converged, exactly safe) or a
-    lower best point taken."""
-    z = polish.z
-    more = _solve_stage(problem, backend, Stage(), formulation="cholesky", floor=floor, opts=opts,
-                        bounds=lambda nlp, lay: nlp.switch_off(np.clip(z, nlp.lbz, nlp.ubz), nlp.lbz, nlp.ubz, floor),
-                        start=start, max_iter=max_iter, restarts=0, offset=problem.iterations,
-                        duals=polish.duals, prefix=prefix, **common)
+    """One more polish from where ``polish`` stopped (:func:`_resumed_polish`
+    from its variables and multipliers, on the polish's own anchor: stage 1's
+    answer), merged into it: its attempts and iterations added, its answer
+    (converged, exactly safe) or a lower best point taken."""
+    state = {"z": polish.z, "lam_x": polish.duals[0], "lam_g": polish.duals[1]}
+    more = _resumed_polish(problem, backend, state, opts, floor, max_iter, common, prefix, anchor=anchor)
+    if more is None:
+        return
     polish.attempts += more.attempts
     polish.used += more.used
     polish.build_time += more.build_time
@@ -440,14 +440,17 @@ def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts:
 
 
 def _resumed_polish(problem: SmoothingProblem, backend: NLPBackend, state: dict, opts: dict, floor: float,
-                    max_iter: int, common: dict, prefix: int) -> Stage | None:
+                    max_iter: int, common: dict, prefix: int, anchor: Layout | None = None) -> Stage | None:
     """The polish stage alone from an earlier polish's answer and multipliers
     (``state``), its switched-off sensing kept off; one attempt of at most
-    ``max_iter`` iterations (None when the prefix cannot be frozen)."""
+    ``max_iter`` iterations (None when the prefix cannot be frozen).
+    ``anchor``: the stage's start (its proximal term's certificates and its
+    first best point), the problem's start unless given."""
     def bounds(nlp: NLPProblem, lay: Layout) -> tuple:
         return nlp.switch_off(np.clip(state["z"], nlp.lbz, nlp.ubz), nlp.lbz, nlp.ubz, floor)
 
-    return _frozen_stage(problem, backend, formulation="cholesky", floor=floor, opts=opts, start=problem.start,
+    start = problem.start if anchor is None else anchor
+    return _frozen_stage(problem, backend, formulation="cholesky", floor=floor, opts=opts, start=start,
                          max_iter=max_iter, restarts=0, offset=problem.iterations, bounds=bounds,
                          duals=(state["lam_x"], state["lam_g"]), prefix=prefix, **common)
 

@@ -24,7 +24,7 @@ def _check_stage_options(v) -> str | None:
         return None
     if not isinstance(v, dict) or not all(isinstance(k, str) for k in v):
         return "must be a dict of solver option names to values"
-    bad = [k for k, x in v.items() if not isinstance(x, (str, bool, int, float))]
+    bad = [k for k, x in v.items() if not (isinstance(x, (str, bool)) or real(x) is not None)]
     return f"option {bad[0]!r} must be a number, a string or a bool" if bad else None
 
 

@@ -17,9 +17,8 @@ import inspect
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-import numpy as np
-
 from ..errors import ValidationError
+from ..scenario_validate import _is_real
 
 __all__ = ["DEFAULT_METHOD", "Option", "Method", "register", "available_methods", "available_solvers", "get_method",
            "resolve_method", "count", "nonneg", "real"]
@@ -40,7 +39,7 @@ def real(v: Any) -> float | None:
     """``v`` as a float when it is a number (not a bool) a float can hold;
     None otherwise (an int beyond 1.8e308 passed Python's comparisons and
     overflowed later, in the solver's arithmetic: found by the fuzz test)."""
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+    if not _is_real(v):
         return None
     try:
         return float(v)
