@@ -16,7 +16,11 @@ Stages (docs/numerics.md, "IPOPT iterations"):
    (:meth:`~belief_nlp.model.nlp_form.NLPProblem.without_sensing`), and --
    for backends with ``warm_duals`` (IPOPT) -- from stage 1's multipliers
    (the same graph, so the same rows and variables); its answer replaces
-   stage 1's when it converged, is exactly safe and is not costlier.
+   stage 1's when it converged, is exactly safe and is not costlier;
+3. for backends with ``warm_duals``, at most ``reenter`` rounds of the polish
+   that turn one switched-off column back on where the answer's Hessian
+   block says sensing lowers the cost (:mod:`.nlp_reentry`; not on a re-plan's
+   longer graph with frozen steps).
 
 A re-plan with the option ``resume`` (:mod:`.nlp_resume`) first resumes
 the polish alone from the earlier polish's answer and multipliers, when that
@@ -60,7 +64,8 @@ formulation or ``scale_means``; "no" without it), ``resumed_stage``
 ``polish_skipped`` (a re-plan after one whose polish did not lower its
 answer skips it, ``polish_retry`` times: :data:`POLISH_RETRY`),
 ``sensing_stationary`` (the polish's answer is stationary for the sensing
-it switched off, :mod:`.nlp_stationary`; None when no polish answered).
+it switched off, :mod:`.nlp_stationary`; None when no polish answered),
+``sensing_reentered`` (the rounds of :mod:`.nlp_reentry` whose answer was taken).
 """
 
 from __future__ import annotations
@@ -80,10 +85,10 @@ from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.result import STATUSES
 from .nlp_backend import NLPBackend, solver_stats
-from . import nlp_resume
+from . import nlp_reentry, nlp_resume
 from ..model.nlp_prefix import longer
 from .nlp_build import _CACHE, _GRAPHS, _base_key, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
-from .nlp_options import POLISH_RETRY, nlp_options  # noqa: F401 - nlp_options: re-exported
+from .nlp_options import POLISH_RETRY, REENTER, nlp_options  # noqa: F401 - nlp_options: re-exported
 from .nlp_recorder import Recorder
 from .nlp_stage import STOPS, Stage, outcome, record_attempt, safe_points
 from .nlp_stationary import sensing_stationary
@@ -246,7 +251,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
             polish: int = 50, regularisation: float = 1e-4, margin: float = DEFAULT_POLICY.nlp, restarts: int = 1,
             stall: int = 300, candidates: int = 5, cache: bool = True, scale_means: float = 1.0,
             resume: dict | None = None, polish_retry: int = POLISH_RETRY,
-            first_stage_options: dict | None = None) -> Outcome:
+            first_stage_options: dict | None = None, reenter: int = REENTER) -> Outcome:
     """``backend``'s solver from the problem's start (module doc); ``scale_means``
     != 1 solves the first stage with the means scaled (:mod:`.nlp_scaled`);
     ``resume``: an earlier answer's first-stage state (:mod:`.nlp_resume`),
@@ -289,6 +294,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     key = _base_key(longer(problem.model, prefix), formulation, margin, regularisation) if resumable else ""
     try:
         before = direct = None
+        reentered = 0
         polish_opts = backend.options(problem.solver_options, problem.tol, "polish")
         ours = fits and nlp_resume.matches(resume, backend.plugin, key, floor)
         skip = int(resume.get("polish_skip", 0)) if ours and polish_retry else 0
@@ -341,6 +347,15 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
                     and not problem.stop_requested:
                 _polish_further(problem, backend, second, first.answer[1], floor, polish_opts,
                                 min(int(polish), max_iter - first.used - second.used), prefix, common)
+            if backend.warm_duals and reenter and not prefix:
+                # switched-off sensing whose block says it lowers the cost comes back on (nlp_reentry)
+                def again(bounds: Callable, duals: tuple, cap: int) -> Stage:
+                    return _solve_stage(problem, backend, Stage(), formulation="cholesky", floor=floor,
+                                        opts=polish_opts, bounds=bounds, start=first.answer[1], max_iter=cap,
+                                        restarts=0, offset=problem.iterations, duals=duals, prefix=prefix,
+                                        **common)
+                reentered = nlp_reentry.reenter(problem, second, floor, reenter, again, int(polish),
+                                                max_iter - first.used - second.used)
             stages.append(second)
     except ValidationError as exc:
         # an option of the first stage's own that the solver refused: name that field
@@ -357,6 +372,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     if skipped:
         out.message += f"; polish skipped (a recent re-plan's did not lower its answer; {skip - 1} more skips)"
     out.stats["polish_skipped"] = skipped
+    out.stats["sensing_reentered"] = reentered
     pol = first if first is direct else stages[1] if len(stages) > 1 else None
     answered = pol is not None and pol.answer is not None and out.point is pol.answer[1]
     # stationary in S as well (nlp_stationary): auto's CCP polish could not lower it

@@ -8,7 +8,7 @@ from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Option, count, nonneg, real
 from . import nlp_resume
 
-__all__ = ["nlp_options", "POLISH_RETRY"]
+__all__ = ["nlp_options", "POLISH_RETRY", "REENTER"]
 
 #: the default ``polish_retry``: re-plans (with ``resume``) that skip the
 #: polish after a run whose polish did not lower its answer, while stage 1's
@@ -16,6 +16,12 @@ __all__ = ["nlp_options", "POLISH_RETRY"]
 #: switched off and the polish ran to its 50 iterations for nothing at every
 #: re-plan (docs/numerics.md, "The polish resumed alone"); the fifth tries again
 POLISH_RETRY = 4
+
+#: the default ``reenter``: rounds of the polish that turn back on the
+#: switched-off sensing whose block says it lowers the cost (nlp_reentry). On
+#: the issue-21 protocol 4 of 40 answers at K = 40 took one round and became
+#: stationary (docs/numerics.md, "Sensing back on after the polish")
+REENTER = 3
 
 
 def _check_stage_options(v) -> str | None:
@@ -47,6 +53,9 @@ def nlp_options(solver: str) -> dict[str, Option]:
         "polish_retry": Option(POLISH_RETRY, "re-plans (with resume) that skip the polish after one whose polish "
                                              "did not lower its answer, while the first stage's answer is below "
                                              "the warm start (0: never skip)", count),
+        "reenter": Option(REENTER, "rounds after the polish that turn back on the switched-off sensing whose "
+                                   "Hessian block says it lowers the cost, one step a round (solvers that take "
+                                   "initial multipliers: IPOPT; 0: none)", count),
         "first_stage_options": Option(None, f"{solver} options of the first stage only, over solver_options "
                                             "(e.g. IPOPT's {'mu_min': 1e-7}, its barrier floor before 3e-6: "
                                             "docs/numerics.md, \"The first stage's barrier floor\")",

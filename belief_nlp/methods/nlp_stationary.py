@@ -29,7 +29,7 @@ import numpy as np
 from ..model.nlp_form import NLPProblem
 from ..model.nlp_matrices import lower_stack
 
-__all__ = ["sensing_stationary"]
+__all__ = ["sensing_stationary", "descent_columns"]
 
 
 #: a column of L_k this short (scaled units; the floor is 1e-2) counts as off:
@@ -37,6 +37,40 @@ __all__ = ["sensing_stationary"]
 #: says nothing about G_k (measured on 24 runs at K = 20: such columns at
 #: 2e-24 .. 2.5e-9, none between that and the floor)
 OFF = 1e-5
+
+
+def _off_blocks(nlp: NLPProblem, solver: Any, p: np.ndarray, z: np.ndarray, lam_g: np.ndarray):
+    """The steps with a switched-off column, which columns are off, each such
+    step's own Hessian block (its t entries of L) and whether the on columns
+    before its first off column determine G_k; None when the solver has no
+    Hessian function to ask."""
+    try:
+        hess = solver.get_function("nlp_hess_l")
+    except RuntimeError:
+        return None
+    tri, d, K, off = nlp.info["tri"], nlp.info["d"], nlp.info["K"], nlp.info["sensing_offset"]
+    t = len(tri)
+    L = lower_stack(np.asarray(z, float)[off:off + K * t].reshape(K, t), tri, d)
+    off_cols = np.linalg.norm(L, axis=1) <= OFF                  # (K, d): switched-off columns
+    steps = np.flatnonzero(off_cols.any(axis=1))
+    if steps.size == 0:
+        return steps, off_cols, np.zeros((0, t, t)), np.zeros(0, bool)
+    # E_j + span(on columns) = R^d for the first off column j iff the diagonal
+    # of every column before it (all on; L is lower triangular) is nonzero
+    first = off_cols[steps].argmax(axis=1)
+    diag = np.abs(L[steps][:, np.arange(d), np.arange(d)])
+    spans = ~np.any((np.arange(d)[None, :] < first[:, None]) & (diag <= OFF), axis=1)
+    idx = (off + steps[:, None] * t + np.arange(t)[None, :]).ravel()
+    sub = hess(z, p, 1.0, np.asarray(lam_g, float)).sparse().tocsr()[idx][:, idx].toarray()     # upper triangle
+    sub = sub + sub.T - np.diag(np.diag(sub))
+    n = steps.size
+    blocks = sub.reshape(n, t, n, t)[np.arange(n), :, np.arange(n), :]       # (n, t, t): each step's own
+    return steps, off_cols, blocks, spans
+
+
+def _entries(nlp: NLPProblem, j: int) -> np.ndarray:
+    """Positions of column j's entries (rows j..d-1) in a step's t entries of L."""
+    return np.array([i for i, (_, c) in enumerate(nlp.info["tri"]) if c == j])
 
 
 def sensing_stationary(nlp: NLPProblem, solver: Any, p: np.ndarray, z: np.ndarray, lam_g: np.ndarray) -> bool | None:
@@ -52,31 +86,40 @@ def sensing_stationary(nlp: NLPProblem, solver: Any, p: np.ndarray, z: np.ndarra
     together with them; an off column j gives E = span(e_j .. e_{d-1})."""
     if nlp.formulation != "cholesky" or "sensing_offset" not in nlp.info:
         return None
-    try:
-        hess = solver.get_function("nlp_hess_l")
-    except RuntimeError:
+    found = _off_blocks(nlp, solver, p, z, lam_g)
+    if found is None:
         return None
-    tri, d, K, off = nlp.info["tri"], nlp.info["d"], nlp.info["K"], nlp.info["sensing_offset"]
-    t = len(tri)
-    L = lower_stack(np.asarray(z, float)[off:off + K * t].reshape(K, t), tri, d)
-    off_cols = np.linalg.norm(L, axis=1) <= OFF                  # (K, d): switched-off columns
-    steps = np.flatnonzero(off_cols.any(axis=1))
+    steps, off_cols, blocks, spans = found
     if steps.size == 0:
         return True
-    # E_j + span(on columns) = R^d for the first off column j iff the diagonal
-    # of every column before it (all on; L is lower triangular) is nonzero
-    first = off_cols[steps].argmax(axis=1)
-    diag = np.abs(L[steps][:, np.arange(d), np.arange(d)])
-    if np.any((np.arange(d)[None, :] < first[:, None]) & (diag <= OFF)):
+    if not spans.all():
         return False
-    idx = (off + steps[:, None] * t + np.arange(t)[None, :]).ravel()
-    sub = hess(z, p, 1.0, np.asarray(lam_g, float)).sparse().tocsr()[idx][:, idx].toarray()     # upper triangle
-    sub = sub + sub.T - np.diag(np.diag(sub))
-    n = steps.size
-    blocks = sub.reshape(n, t, n, t)[np.arange(n), :, np.arange(n), :]       # (n, t, t): each step's own
-    for j in range(d):
-        ent = np.array([i for i, (_, c) in enumerate(tri) if c == j])
+    for j in range(nlp.info["d"]):
+        ent = _entries(nlp, j)
         at = off_cols[steps, j]
         if at.any() and np.linalg.eigvalsh(blocks[at][:, ent][:, :, ent])[:, 0].min() < 0.0:
             return False
     return True
+
+
+def descent_columns(nlp: NLPProblem, solver: Any, p: np.ndarray, z: np.ndarray,
+                    lam_g: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray, float]]:
+    """(step, positions in z, direction, eigenvalue) of every step whose first
+    switched-off column j has a negative block: sensing S_k + t v v^T with v
+    that block's eigenvector of its smallest eigenvalue (entries j..d-1 of
+    column j) lowers the Lagrangian at ``z`` (module doc). Empty for another
+    formulation or a solver without a Hessian function; a step whose blocks do
+    not determine G_k is left out."""
+    if nlp.formulation != "cholesky" or "sensing_offset" not in nlp.info:
+        return []
+    found = _off_blocks(nlp, solver, p, z, lam_g)
+    if found is None:
+        return []
+    steps, off_cols, blocks, spans = found
+    t, off, out = len(nlp.info["tri"]), nlp.info["sensing_offset"], []
+    for a, k in enumerate(steps):
+        ent = _entries(nlp, int(off_cols[k].argmax()))
+        w, V = np.linalg.eigh(blocks[a][np.ix_(ent, ent)])
+        if spans[a] and w[0] < 0.0:
+            out.append((int(k), off + int(k) * t + ent, V[:, 0], float(w[0])))
+    return out
