@@ -37,7 +37,13 @@ DEFAULT_IPOPT_OPTIONS: dict[str, Any] = {
 #: -50 % at K = 80 against 1e-7; docs/numerics.md, "The first stage's barrier
 #: floor"); the polish takes the answer the rest of the way
 LOGCHOL_IPOPT_OPTIONS: dict[str, Any] = {"mu_min": 3e-6}
-POLISH_IPOPT_OPTIONS: dict[str, Any] = {"mu_strategy": "monotone", "mu_init": 1e-8,
+#: The polish's barrier stays at mu_init: IPOPT's monotone update never lowers mu
+#: below min(tol, compl_inf_tol) / (barrier_tol_factor + 1), and with tol = 1e-4 and
+#: the default compl_inf_tol (1e-4) that floor, 9.1e-6, is above 1e-8, so the first
+#: "decrease" after a barrier problem solved short of constr_viol_tol raised mu a
+#: thousandfold and the polish walked off its answer to the cap (5 of 40 at K = 40;
+#: compl_inf_tol 1e-7 puts the floor at 9.1e-9; docs/numerics.md, "The polish's barrier")
+POLISH_IPOPT_OPTIONS: dict[str, Any] = {"mu_strategy": "monotone", "mu_init": 1e-8, "compl_inf_tol": 1e-7,
                                         # the first stage's multipliers as the start's (NLPBackend.warm_duals),
                                         # the start pushed no further into the interior than mu_init
                                         "warm_start_init_point": "yes", "warm_start_bound_push": 1e-9,
