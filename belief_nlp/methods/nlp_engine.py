@@ -352,8 +352,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
                 def again(bounds: Callable, duals: tuple, cap: int) -> Stage:
                     return _solve_stage(problem, backend, Stage(), formulation="cholesky", floor=floor,
                                         opts=polish_opts, bounds=bounds, start=first.answer[1], max_iter=cap,
-                                        restarts=0, offset=problem.iterations, duals=duals, prefix=prefix,
-                                        **common)
+                                        restarts=0, offset=problem.iterations, duals=duals, **common)
                 reentered = nlp_reentry.reenter(problem, second, floor, reenter, again, int(polish),
                                                 max_iter - first.used - second.used)
             stages.append(second)

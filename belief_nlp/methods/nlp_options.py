@@ -19,8 +19,9 @@ POLISH_RETRY = 4
 
 #: the default ``reenter``: rounds of the polish that turn back on the
 #: switched-off sensing whose block says it lowers the cost (nlp_reentry). On
-#: the issue-21 protocol 4 of 40 answers at K = 40 took one round and became
-#: stationary (docs/numerics.md, "Sensing back on after the polish")
+#: the issue-21 protocol 2 of 40 answers at K = 40 took one round and became
+#: stationary, 2 of 12 at K = 80 took three (docs/numerics.md, "Sensing back on
+#: after the polish")
 REENTER = 3
 
 
