@@ -422,16 +422,8 @@ def _polish_further(problem: SmoothingProblem, backend: NLPBackend, polish: Stag
     (converged, exactly safe) or a lower best point taken."""
     state = {"z": polish.z, "lam_x": polish.duals[0], "lam_g": polish.duals[1]}
     more = _resumed_polish(problem, backend, state, opts, floor, max_iter, common, prefix, anchor=anchor)
-    if more is None:
-        return
-    polish.attempts += more.attempts
-    polish.used += more.used
-    polish.build_time += more.build_time
-    polish.status = more.status
-    if more.answer is not None:
-        polish.answer, polish.z, polish.duals, polish.solved = more.answer, more.z, more.duals, more.solved
-    if more.best is not None and (polish.best is None or more.best[0] < polish.best[0]):
-        polish.best = more.best
+    if more is not None:
+        polish.absorb(more, take=more.answer is not None)
 
 
 def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts: dict, floor: float,

@@ -73,16 +73,13 @@ def reenter(problem: SmoothingProblem, polish: Stage, floor: float, rounds: int,
             return z0, lbz, ubz
 
         more = solve(bounds, polish.duals, min(cap, left))
-        polish.attempts += more.attempts
-        polish.used += more.used
-        polish.build_time += more.build_time
         left -= more.used
         log.info("sensing back on at step %d (eigenvalue %.3g): %s after %d iterations, cost %.6g -> %s", k + 1, w,
                  more.status, more.used, polish.answer[0], "-" if more.answer is None else f"{more.answer[0]:.6g}")
-        if more.answer is None or more.answer[0] > polish.answer[0]:
+        take = more.answer is not None and more.answer[0] <= polish.answer[0]
+        polish.absorb(more, take)
+        if not take:
             break
-        polish.answer, polish.z, polish.duals, polish.solved = more.answer, more.z, more.duals, more.solved
-        polish.status = more.status
         taken += 1
     return taken
 

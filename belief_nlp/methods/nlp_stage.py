@@ -81,6 +81,21 @@ class Stage:
     z: np.ndarray | None = None          # the variables of that solve (with duals)
     solved: tuple | None = None          # (nlp, solver, p) of that solve
 
+    def absorb(self, more: "Stage", take: bool) -> None:
+        """``more``, a later solve that continues this stage, merged in: its
+        attempts, iterations and build time; with ``take`` its answer, its
+        variables, multipliers and solve, and its status (also its status
+        when this stage has no answer); its best point when lower."""
+        self.attempts += more.attempts
+        self.used += more.used
+        self.build_time += more.build_time
+        if take:
+            self.answer, self.z, self.duals, self.solved = more.answer, more.z, more.duals, more.solved
+        if take or self.answer is None:
+            self.status = more.status
+        if more.best is not None and (self.best is None or more.best[0] < self.best[0]):
+            self.best = more.best
+
 
 STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded", "stalled": "Stalled",
           "left_box": "Left_Kalman_Box", "walked": "Infeasible_Walk"}
