@@ -85,10 +85,10 @@ from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.result import STATUSES
 from .nlp_backend import NLPBackend, solver_stats
-from . import nlp_reentry, nlp_resume
+from . import nlp_reentry, nlp_resume, nlp_stepdown
 from ..model.nlp_prefix import longer
 from .nlp_build import _CACHE, _GRAPHS, _base_key, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
-from .nlp_options import POLISH_RETRY, REENTER, nlp_options  # noqa: F401 - nlp_options: re-exported
+from .nlp_options import POLISH_RETRY, REENTER, STEP_DOWN, nlp_options  # noqa: F401 - nlp_options: re-exported
 from .nlp_recorder import Recorder
 from .nlp_stage import STOPS, Stage, outcome, record_attempt, safe_points
 from .nlp_stationary import sensing_stationary
@@ -251,7 +251,8 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
             polish: int = 50, regularisation: float = 1e-4, margin: float = DEFAULT_POLICY.nlp, restarts: int = 1,
             stall: int = 300, candidates: int = 5, cache: bool = True, scale_means: float = 1.0,
             resume: dict | None = None, polish_retry: int = POLISH_RETRY,
-            first_stage_options: dict | None = None, reenter: int = REENTER) -> Outcome:
+            first_stage_options: dict | None = None, reenter: int = REENTER,
+            step_down: float = STEP_DOWN) -> Outcome:
     """``backend``'s solver from the problem's start (module doc); ``scale_means``
     != 1 solves the first stage with the means scaled (:mod:`.nlp_scaled`);
     ``resume``: an earlier answer's first-stage state (:mod:`.nlp_resume`),
@@ -293,7 +294,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     prefix = int(resume["offset"]) if fits else 0
     key = _base_key(longer(problem.model, prefix), formulation, margin, regularisation) if resumable else ""
     try:
-        before = direct = None
+        before = direct = stepped = None
         reentered = 0
         polish_opts = backend.options(problem.solver_options, problem.tol, "polish")
         ours = fits and nlp_resume.matches(resume, backend.plugin, key, floor)
@@ -347,13 +348,23 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
                     and not problem.stop_requested:
                 _polish_further(problem, backend, second, first.answer[1], floor, polish_opts,
                                 min(int(polish), max_iter - first.used - second.used), prefix, common)
+            lower_floor = floor
+            if resumable and step_down and not prefix:
+                # a polish without an answer: the floored stage at a lower floor, then its polish (nlp_stepdown)
+                def solve(**kw: Any) -> Stage:
+                    return _solve_stage(problem, backend, Stage(), restarts=0, offset=problem.iterations, **kw,
+                                        **common)
+                stepped = nlp_stepdown.step_down(problem, first, second, floor, step_down, solve,
+                                                 _with_resume_options(backend, opts, first_opts), polish_opts,
+                                                 int(polish), max_iter - first.used - second.used)
+                lower_floor = floor * step_down if stepped == "polished" else floor
             if backend.warm_duals and reenter and not prefix:
                 # switched-off sensing whose block says it lowers the cost comes back on (nlp_reentry)
                 def again(bounds: Callable, duals: tuple, cap: int) -> Stage:
-                    return _solve_stage(problem, backend, Stage(), formulation="cholesky", floor=floor,
+                    return _solve_stage(problem, backend, Stage(), formulation="cholesky", floor=lower_floor,
                                         opts=polish_opts, bounds=bounds, start=first.answer[1], max_iter=cap,
                                         restarts=0, offset=problem.iterations, duals=duals, **common)
-                reentered = nlp_reentry.reenter(problem, second, floor, reenter, again, int(polish),
+                reentered = nlp_reentry.reenter(problem, second, lower_floor, reenter, again, int(polish),
                                                 max_iter - first.used - second.used)
             stages.append(second)
     except ValidationError as exc:
@@ -372,6 +383,7 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         out.message += f"; polish skipped (a recent re-plan's did not lower its answer; {skip - 1} more skips)"
     out.stats["polish_skipped"] = skipped
     out.stats["sensing_reentered"] = reentered
+    out.stats["floor_stepped_down"] = stepped
     pol = first if first is direct else stages[1] if len(stages) > 1 else None
     answered = pol is not None and pol.answer is not None and out.point is pol.answer[1]
     # stationary in S as well (nlp_stationary): auto's CCP polish could not lower it
@@ -381,7 +393,8 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         out.message += "; sensing at a step the polish switched off would lower the cost (auto's CCP polish does)"
     if key and first.answer is not None and first.duals is not None:
         # the polish's state when its answer is the run's (a later re-plan resumes it alone)
-        polished = (pol.z, pol.duals) if answered else None
+        # (a polish at a stepped-down floor is not: a re-plan's resumed polish switches off at the run's floor)
+        polished = (pol.z, pol.duals) if answered and stepped != "polished" else None
         if len(stages) > 1:              # a polish that did not lower stage 1's answer: skipped next time
             skip_next = 0 if out.point is not first.answer[1] else int(polish_retry)
         else:
@@ -434,16 +447,21 @@ def _resumed(problem: SmoothingProblem, backend: NLPBackend, resume: dict, opts:
     one attempt of at most :data:`RESUME_LIMIT` K iterations; on ``resume``'s
     graph with its first ``prefix`` steps frozen at the problem's start
     (None when they cannot be: :func:`belief_nlp.model.nlp_prefix.frozen`)."""
-    own = {k: v for k, v in backend.resume_options.items() if k not in user}
-
     def bounds(nlp: NLPProblem, lay: Layout) -> tuple:
         # the frozen variables are fixed by their bounds: clipping sets them
         return np.clip(resume["z"], nlp.lbz, nlp.ubz), nlp.lbz, nlp.ubz
 
-    return _frozen_stage(problem, backend, formulation="logchol", floor=floor, opts={**opts, **own},
+    return _frozen_stage(problem, backend, formulation="logchol", floor=floor,
+                         opts=_with_resume_options(backend, opts, user),
                          start=problem.start, max_iter=min(max_iter, RESUME_LIMIT * problem.model.data.K),
                          restarts=0, offset=problem.iterations, bounds=bounds,
                          duals=(resume["lam_x"], resume["lam_g"]), prefix=prefix, **common)
+
+
+def _with_resume_options(backend: NLPBackend, opts: dict, user: dict) -> dict:
+    """``opts`` with the backend's ``resume_options`` where the user's
+    options of the stage (``user``) are silent."""
+    return {**opts, **{k: v for k, v in backend.resume_options.items() if k not in user}}
 
 
 def _resumed_polish(problem: SmoothingProblem, backend: NLPBackend, state: dict, opts: dict, floor: float,

@@ -7,8 +7,9 @@ from ..model.nlp_form import FORMULATIONS
 from ..smoother.policy import DEFAULT_POLICY
 from ..smoother.registry import Option, count, nonneg, real
 from . import nlp_resume
+from .nlp_stepdown import STEP_DOWN
 
-__all__ = ["nlp_options", "POLISH_RETRY", "REENTER"]
+__all__ = ["nlp_options", "POLISH_RETRY", "REENTER", "STEP_DOWN"]
 
 #: the default ``polish_retry``: re-plans (with ``resume``) that skip the
 #: polish after a run whose polish did not lower its answer, while stage 1's
@@ -57,6 +58,10 @@ def nlp_options(solver: str) -> dict[str, Option]:
         "reenter": Option(REENTER, "rounds after the polish that turn back on the switched-off sensing whose "
                                    "Hessian block says it lowers the cost, one step a round (solvers that take "
                                    "initial multipliers: IPOPT; 0: none)", count),
+        "step_down": Option(STEP_DOWN, "after a polish without an answer, the floored stage once more at floor x "
+                                       "step_down from its answer and multipliers, then the polish at that floor "
+                                       "(solvers that take initial multipliers: IPOPT; 0: none)",
+                            lambda v: None if (r := real(v)) is not None and 0 <= r < 1 else "must be a number in [0, 1)"),
         "first_stage_options": Option(None, f"{solver} options of the first stage only, over solver_options "
                                             "(e.g. IPOPT's {'mu_min': 1e-7}, its barrier floor before 3e-6: "
                                             "docs/numerics.md, \"The first stage's barrier floor\")",
