@@ -15,28 +15,27 @@ from belief_nlp.methods.nlp_stage import STOPS, Stage
 
 
 @pytest.fixture(scope="module")
-def demo_case():
-    """The demo's and notebook 03's plan (paper-multi, alpha 1, max_radius 1.5):
-    with the first stage's floor at 3e-6 its polish walks the means for 67
-    iterations (2.31369 at the cap of 50)."""
-    sc = bn.load_scenario("paper-multi").with_options(alpha=1.0)
-    planned = next(p for p in (bn.plan(sc, n_nodes=500, seed=s, noise="per_step", max_radius=1.5)
-                               for s in range(6)) if p.success)
-    return sc, bn.warm_start(sc, planned.path, K=max(sc.K, planned.path.K))
+def capped_case():
+    """paper-multi, planner seed 3 with max_radius 1.5, K = 20, alpha 0.1:
+    its polish is still lowering its cost at the cap of 50 and converges 36
+    iterations later (measured with the padded first stage, session 24; the
+    demo's plan, this test's case before, now polishes in 5)."""
+    sc = bn.load_scenario("paper-multi").with_options(alpha=0.1)
+    planned = bn.plan(sc, n_nodes=500, seed=3, noise="per_step", max_radius=1.5)
+    assert planned.success
+    return sc, bn.warm_start(sc, planned.path, K=20)
 
 
-def test_a_polish_still_lowering_its_cost_at_the_cap_goes_on(demo_case):
+def test_a_polish_still_lowering_its_cost_at_the_cap_goes_on(capped_case):
     """The capped polish goes on and converges at the cost an uncapped one
-    reaches (polish=100: one run of 67), verified; a second extension is
-    never run."""
-    sc, ws = demo_case
+    reaches (polish=100, one run), verified; a second extension is never run."""
+    sc, ws = capped_case
     res = bn.smooth(sc, ws, method="ipopt")
     longer = bn.smooth(sc, ws, method="ipopt", polish=100)
     polish = [(a["return_status"], a["iter_count"]) for a in res.stats["attempts"] if a["formulation"] == "cholesky"]
     assert polish[0] == ("Maximum_Iterations_Exceeded", 50) and len(polish) == 2 and polish[1][1] <= 50
     assert res.stats["polish_status"] == "Solve_Succeeded" and res.status == "converged"
     assert res.cost == pytest.approx(longer.cost, rel=1e-5) and bn.verify(sc, res.path).safe
-    assert res.cost < 2.3132              # the capped polish's point was 2.31369
 
 
 def _stage_and_history(costs: list[float], status: str = STOPS["max_iter"]):

@@ -17,6 +17,7 @@ from typing import Any
 from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.registry import Method, Option, real, register
 from .nlp_engine import NLPBackend, clear_cache, nlp_options, run_nlp
+from .nlp_padded import PaddedSolver, pads
 
 __all__ = ["run", "DEFAULT_IPOPT_OPTIONS", "map_status", "clear_cache", "IPOPT"]
 
@@ -106,6 +107,16 @@ class IpoptBackend(NLPBackend):
         # answers, iterations and costs bit for bit on 10 cases; numerics.md)
         return {"ipopt": {**opts, "output_file": log_path, "file_print_level": 5},
                 "no_nlp_grad": True, "calc_lam_x": False, "calc_lam_p": False, "calc_f": False, "calc_g": False}
+
+    def pads(self, opts: dict) -> int:
+        return pads(opts)
+
+    def nlpsol(self, name: str, nlp: dict, options: dict) -> Any:
+        # a cold solve gets one free variable more: IPOPT then skips a factorisation
+        # that fails its inertia test in 92 % of the iterations (nlp_padded)
+        if pads(options[self.plugin]):
+            return PaddedSolver(name, self.plugin, nlp, options)
+        return super().nlpsol(name, nlp, options)
 
     def map_status(self, raw: str) -> str:
         return map_status(raw)

@@ -88,6 +88,13 @@ class NLPBackend:
         ``stats()`` method) that drives ``options["iteration_callback"]``."""
         return ca.nlpsol(name, self.plugin, nlp, options)
 
+    def pads(self, opts: dict) -> int:
+        """Free variables nothing reads that :meth:`nlpsol` appends to the
+        NLP's for plug-in options ``opts`` (IPOPT's cold solves: one,
+        :mod:`.nlp_padded`): the solver's x, and its iteration callback's,
+        are that much longer (none by default)."""
+        return 0
+
     def attempt_stats(self, stats: dict) -> dict:
         """Raw solver statistics kept in each attempt's record (none by default)."""
         return {}

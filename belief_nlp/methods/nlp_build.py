@@ -106,7 +106,7 @@ def solver_of(model: BeliefModel, backend: NLPBackend, opts: dict, formulation: 
     own = nlp is view or scale != 1
     slot = backend.plugin + scale_key
     given, source, fill = _given_derivatives(nlp, backend, shared, slot, cache) if own else ({}, "", None)
-    recorder = Recorder(nlp, keep=candidates, bar=None, stall=0)
+    recorder = Recorder(nlp, keep=candidates, bar=None, stall=0, pad=backend.pads(opts))
     recorder.log_path = backend.log_file()
     name = f"belief_nlp_{backend.plugin}" + ("_scaled" if scale != 1 else "")
     try:

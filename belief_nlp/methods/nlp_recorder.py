@@ -40,9 +40,10 @@ class Recorder(ca.Callback):
     #: K = 80 solve is tens of MB, held as long as the cached solver
     keep_all_iterates = False
 
-    def __init__(self, nlp: NLPProblem, keep: int, bar, stall: int = 0):
+    def __init__(self, nlp: NLPProblem, keep: int, bar, stall: int = 0, pad: int = 0):
         ca.Callback.__init__(self)
-        self.nx = int(nlp.z.shape[0])
+        self.n = int(nlp.z.shape[0])
+        self.nx = self.n + int(pad)            # the solver's x: the NLP's and its padding (nlp_padded)
         self.ng = int(nlp.g.shape[0])
         self.keep = keep
         self.bar = bar
@@ -150,7 +151,7 @@ class Recorder(ca.Callback):
         solver's buffers (no DM per input and iteration: the DM route cost
         ~0.25-0.45 ms an iteration, a fifth of IPOPT's own time per iteration
         at K = 20); x is copied (candidates keep it), g only read here."""
-        x = np.array(np.frombuffer(arg[0], dtype=np.float64))
+        x = np.array(np.frombuffer(arg[0], dtype=np.float64)[:self.n])
         if arg[1] is None or arg[2] is None:
             # a solver that passes f and g as NULL (CasADi's Uno plug-in): the
             # NLP's own values at x, or the history and the candidates would
