@@ -36,6 +36,12 @@ def _check_stage_options(v) -> str | None:
     return f"option {bad[0]!r} must be a number, a string or a bool" if bad else None
 
 
+def _check_step_down(v) -> str | None:
+    """``step_down``: a factor in [0, 1) (0: no step-down)."""
+    r = real(v)
+    return None if r is not None and 0 <= r < 1 else "must be a number in [0, 1)"
+
+
 def nlp_options(solver: str) -> dict[str, Option]:
     """The options every NLP method takes (the keywords of :func:`run_nlp`)."""
     return {
@@ -61,7 +67,7 @@ def nlp_options(solver: str) -> dict[str, Option]:
         "step_down": Option(STEP_DOWN, "after a polish without an answer, the floored stage once more at floor x "
                                        "step_down from its answer and multipliers, then the polish at that floor "
                                        "(solvers that take initial multipliers: IPOPT; 0: none)",
-                            lambda v: None if (r := real(v)) is not None and 0 <= r < 1 else "must be a number in [0, 1)"),
+                            _check_step_down),
         "first_stage_options": Option(None, f"{solver} options of the first stage only, over solver_options "
                                             "(e.g. IPOPT's {'mu_min': 1e-7}, its barrier floor before 3e-6: "
                                             "docs/numerics.md, \"The first stage's barrier floor\")",

@@ -87,33 +87,42 @@ class PaddedSolver:
         return self._own[name]
 
 
+#: which dimensions of each derivative function's last output run over x (rows, columns)
+_X_DIMS = {"grad_f": (True, False), "jac_g": (False, True), "hess_lag": (True, True)}
+
+
 def _padded(fn: ca.Function, option: str, n: int, pad: int) -> ca.Function:
     """Derivative function ``fn`` of an NLP in x (n) as the padded NLP's (x, free):
     nothing reads the free variables, so their gradient, Jacobian columns and
-    Hessian rows are structural zeros."""
-    ins = [ca.MX.sym(fn.name_in(i), *((n + pad, 1) if i == 0 else fn.sparsity_in(i).shape))
-           for i in range(fn.n_in())]
-    outs = fn.call([ins[0][:n]] + ins[1:])
-    if option == "grad_f":
-        # dense: the plug-in reads the gradient's nonzeros as the dense vector
-        # (a structural zero there left the free variable's entry stale: diverging)
-        outs = [outs[0], ca.densify(ca.vertcat(outs[1], ca.MX.zeros(pad, 1)))]
-    elif option == "jac_g":
-        outs = [outs[0], ca.horzcat(outs[1], ca.MX(outs[1].shape[0], pad))]
-    else:
-        outs = [ca.diagcat(outs[0], ca.MX(pad, pad))]
-    return ca.Function(fn.name(), ins, outs, fn.name_in(), fn.name_out())
+    Hessian rows are zeros."""
+    return _resized(fn, option, n + pad)
 
 
 def _unpadded(fn: ca.Function, option: str, n: int) -> ca.Function:
     """The padded NLP's derivative function ``fn`` on the NLP's own x (n): the free variables at 0."""
+    return _resized(fn, option, n)
+
+
+def _resized(fn: ca.Function, option: str, n: int) -> ca.Function:
+    """``fn`` (option ``option``, x its first input) on an x of n entries:
+    x cut or padded with zeros to fn's, the last output's x dimensions cut
+    or padded with zeros to n."""
     ins = [ca.MX.sym(fn.name_in(i), *((n, 1) if i == 0 else fn.sparsity_in(i).shape)) for i in range(fn.n_in())]
-    pad = fn.sparsity_in(0).shape[0] - n
-    outs = fn.call([ca.vertcat(ins[0], ca.MX.zeros(pad, 1))] + ins[1:])
-    if option == "grad_f":
-        outs = [outs[0], outs[1][:n]]
-    elif option == "jac_g":
-        outs = [outs[0], outs[1][:, :n]]
-    else:
-        outs = [outs[0][:n, :n]]
+    outs = fn.call([_fit(ins[0], fn.sparsity_in(0).shape[0], 1)] + ins[1:])
+    rows, cols = _X_DIMS[option]
+    last = outs[-1]
+    last = _fit(last, n if rows else last.shape[0], n if cols else last.shape[1])
+    # the gradient dense: the plug-in reads its nonzeros as the dense vector (a
+    # structural zero there left the free variable's entry stale: Diverging_Iterates)
+    outs[-1] = ca.densify(last) if option == "grad_f" else last
     return ca.Function(fn.name(), ins, outs, fn.name_in(), fn.name_out())
+
+
+def _fit(e: ca.MX, rows: int, cols: int) -> ca.MX:
+    """``e`` cut, or padded with structural zeros, to rows x cols."""
+    e = e[:min(rows, e.shape[0]), :min(cols, e.shape[1])]
+    if e.shape[0] < rows:
+        e = ca.vertcat(e, ca.MX(rows - e.shape[0], e.shape[1]))
+    if e.shape[1] < cols:
+        e = ca.horzcat(e, ca.MX(e.shape[0], cols - e.shape[1]))
+    return e
