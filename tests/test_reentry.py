@@ -80,12 +80,12 @@ def test_sensing_that_pays_comes_back_on_by_default_and_auto_skips_its_ccp_polis
     lowers the cost by more than 0.1 % to a stationary answer, below auto's
     CCP polish of the polish's answer, and auto then skips that polish."""
     ws = _warm(pm, 40, seed=6)
-    alone = bn.smooth(pm, ws, alpha=1.0, method="ipopt", reenter=0)
+    alone = bn.smooth(pm, ws, alpha=1.0, method="ipopt", reenter=0, step_down=0)      # (the step-down would too)
     assert alone.stats["sensing_stationary"] is False
     res = bn.smooth(pm, ws, alpha=1.0, method="ipopt")
     assert res.stats["sensing_reentered"] >= 1 and res.stats["sensing_stationary"] is True
     assert res.cost < alone.cost * (1 - 1e-3) and bn.verify(pm, res.path).safe
-    ccp = bn.smooth(pm, ws, alpha=1.0, ipopt_options={"reenter": 0})
+    ccp = bn.smooth(pm, ws, alpha=1.0, ipopt_options={"reenter": 0, "step_down": 0})
     assert ccp.method == "auto:ipopt+ccp" and res.cost <= ccp.cost * (1 + 1e-6)
     auto = bn.smooth(pm, ws, alpha=1.0)
     assert auto.method == "auto:ipopt" and auto.cost == pytest.approx(res.cost, rel=1e-9)

@@ -41,6 +41,28 @@ def test_a_polish_without_an_answer_steps_the_floor_down_below_the_ccp_polish(pm
     assert auto.method == "auto:ipopt" and auto.cost == pytest.approx(res.cost, rel=1e-9)
 
 
+def test_sensing_that_would_pay_after_the_rounds_steps_the_floor_down():
+    """random-polygons map 0, K = 80, alpha 1: the polish answers, but
+    sensing at a switched-off stretch would pay (shares 0.47-0.56 of its
+    price at steps 72-76) and the re-entry round runs to its cap (measured).
+    Stepped down, the answer is stationary in S, more than 0.3 % lower,
+    exactly safe, and not above auto's CCP polish of the unstepped answer (a
+    second method); auto then skips that polish."""
+    from belief_nlp.families import generate
+
+    sc = generate("random-polygons", 0)
+    ws = _warm(sc, 80)
+    alone = bn.smooth(sc, ws, alpha=1.0, method="ipopt", step_down=0)
+    assert alone.stats["polish_status"] == "Solve_Succeeded" and alone.stats["sensing_stationary"] is False
+    res = bn.smooth(sc, ws, alpha=1.0, method="ipopt")
+    assert res.stats["floor_stepped_down"] == "polished" and res.stats["sensing_stationary"] is True
+    assert res.success and bn.verify(sc, res.path).safe and res.cost < alone.cost * (1 - 3e-3)
+    ccp = bn.smooth(sc, ws, alpha=1.0, ipopt_options={"step_down": 0})
+    assert ccp.method == "auto:ipopt+ccp" and res.cost <= ccp.cost * (1 + 1e-6)
+    auto = bn.smooth(sc, ws, alpha=1.0)
+    assert auto.method == "auto:ipopt" and auto.cost == pytest.approx(res.cost, rel=1e-9)
+
+
 def test_released_multipliers_are_those_of_the_floor_bounds(small_start):
     """``released`` zeroes exactly the lower-bound multipliers (negative in
     CasADi's lam_x) of the entries the floor bounds, found independently as

@@ -348,16 +348,19 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
                     and not problem.stop_requested:
                 _polish_further(problem, backend, second, first.answer[1], floor, polish_opts,
                                 min(int(polish), max_iter - first.used - second.used), prefix, common)
-            lower_floor = floor
-            if resumable and step_down and not prefix:
-                # a polish without an answer: the floored stage at a lower floor, then its polish (nlp_stepdown)
+            stepping = resumable and bool(step_down) and not prefix
+
+            def stepped_down() -> str | None:
+                # the floored stage at a lower floor, then its polish (nlp_stepdown)
                 def solve(**kw: Any) -> Stage:
                     return _solve_stage(problem, backend, Stage(), restarts=0, offset=problem.iterations, **kw,
                                         **common)
-                stepped = nlp_stepdown.step_down(problem, first, second, floor, step_down, solve,
-                                                 _with_resume_options(backend, opts, first_opts), polish_opts,
-                                                 int(polish), max_iter - first.used - second.used)
-                lower_floor = floor * step_down if stepped == "polished" else floor
+                return nlp_stepdown.step_down(problem, first, second, floor, step_down, solve,
+                                              _with_resume_options(backend, opts, first_opts), polish_opts,
+                                              int(polish), max_iter - first.used - second.used)
+            if stepping and second.answer is None:
+                stepped = stepped_down()
+            lower_floor = floor * step_down if stepped == "polished" else floor
             if backend.warm_duals and reenter and not prefix:
                 # switched-off sensing whose block says it lowers the cost comes back on (nlp_reentry)
                 def again(bounds: Callable, duals: tuple, cap: int) -> Stage:
@@ -366,6 +369,9 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
                                         restarts=0, offset=problem.iterations, duals=duals, **common)
                 reentered = nlp_reentry.reenter(problem, second, lower_floor, reenter, again, int(polish),
                                                 max_iter - first.used - second.used)
+            if stepping and stepped is None and nlp_reentry.pays(problem, second):
+                # switched-off sensing that would pay, and the rounds did not turn it on
+                stepped = stepped_down()
             stages.append(second)
     except ValidationError as exc:
         # an option of the first stage's own that the solver refused: name that field

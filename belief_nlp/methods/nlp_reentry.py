@@ -33,7 +33,7 @@ from ..smoother.context import SmoothingProblem
 from .nlp_stage import Stage
 from .nlp_stationary import descent_columns
 
-__all__ = ["reenter"]
+__all__ = ["reenter", "pays"]
 
 log = logging.getLogger("belief_nlp.smoother")
 
@@ -82,6 +82,17 @@ def reenter(problem: SmoothingProblem, polish: Stage, floor: float, rounds: int,
             break
         taken += 1
     return taken
+
+
+def pays(problem: SmoothingProblem, polish: Stage) -> bool:
+    """Whether ``polish``'s answer has a switched-off column whose sensing
+    pays (:func:`_worth`): the rounds' own test, e.g. after rounds that
+    did not turn it on."""
+    if polish.answer is None or polish.solved is None or polish.z is None or polish.duals is None:
+        return False
+    nlp, solver, p = polish.solved
+    return bool(_worth(nlp, polish.z, problem.model.data.alpha,
+                       descent_columns(nlp, solver, p, polish.z, polish.duals[1])))
 
 
 def _worth(nlp: NLPProblem, z: np.ndarray, alpha: float, cols: list) -> list:

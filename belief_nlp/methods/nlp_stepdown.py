@@ -8,6 +8,11 @@ start far from feasible (0.49 in the rows at K = 80), and the polish runs to
 its cap without an answer. The run's answer is then the floored one, which
 pays for the floor (up to 2.7 % at K = 80).
 
+The same holds where the polish answers but sensing at a switched-off
+stretch would pay and the re-entry rounds (:mod:`.nlp_reentry`), one
+column at a time, do not turn it on (random-polygons map 0 at K = 80: a
+round over steps 72-76 ran to its cap).
+
 A step-down runs the floored stage once more at ``floor * factor``, resumed
 from its answer and multipliers with the backend's resume options (those of
 a re-plan), the floor's multipliers released (:func:`released`), then the
@@ -22,7 +27,8 @@ point when lower.
 Measured on the issue-21 protocol (docs/numerics.md, "The floor stepped
 down"): the polish had no answer in 8 of 184 cases per method (6 of 12 at
 K = 80); stepped down by 0.1, all 8 polished, 0.4-2.9 % lower, stationary
-in S, none above auto's CCP polish. The lower stage took 10-81 iterations,
+in S, none above auto's CCP polish; after the rounds, the one case at
+K = 80 polished 0.6 % lower. The lower stage took 10-81 iterations,
 and one crawled to its cap of twice the polish's next to its best point
 (a cap of the polish's own left one of the 8 unpolished).
 """
@@ -48,20 +54,21 @@ STEP_DOWN = 0.1
 
 def step_down(problem: SmoothingProblem, first: Stage, polish: Stage, floor: float, factor: float,
               solve: Callable[..., Stage], lower_opts: dict, polish_opts: dict, cap: int, left: int) -> str | None:
-    """The step-down to ``floor * factor`` (module doc) after ``polish``,
+    """The step-down to ``floor * factor`` (module doc) after ``polish``
+    (without an answer, or with one whose switched-off sensing would pay),
     merged into it: its attempts and iterations; the lower polish's answer
-    when taken, else a lower best point. ``solve(**kw)`` runs one attempt of
+    when taken (not costlier than any before), else a lower best point. ``solve(**kw)`` runs one attempt of
     a stage (:func:`.nlp_engine._solve_stage`'s keywords); ``lower_opts``:
     the plug-in's options of the lower floored stage, ``polish_opts`` of its
     polish. The lower stage gets at most 2 ``cap`` iterations, the polish
     ``cap``, both together ``left``. Returns None when it did not run, else
     "polished" (the lower polish answered), "floored" (the lower floored
     stage's answer or best point is lower than any before) or "not lower"."""
-    if not factor or polish.answer is not None or first.answer is None or first.z is None \
-            or first.duals is None or first.solved is None or problem.out_of_time() \
-            or problem.stop_requested or min(cap, left) <= 0:
+    if not factor or first.answer is None or first.z is None or first.duals is None or first.solved is None \
+            or problem.out_of_time() or problem.stop_requested or min(cap, left) <= 0:
         return None
-    before = min(first.answer[0], polish.best[0] if polish.best is not None else np.inf)
+    before = min(first.answer[0], polish.best[0] if polish.best is not None else np.inf,
+                 polish.answer[0] if polish.answer is not None else np.inf)
     lower, z_first = floor * factor, first.z
     duals = (released(first.solved[0], first.duals[0]), first.duals[1])
     down = solve(formulation="logchol", floor=lower, opts=lower_opts, start=first.answer[1],
@@ -79,14 +86,14 @@ def step_down(problem: SmoothingProblem, first: Stage, polish: Stage, floor: flo
         taken = again.answer is not None and again.answer[0] <= before
         polish.absorb(again, take=taken)
         if taken:
-            log.info("floor stepped down to %g after a polish without an answer: polished", lower)
+            log.info("floor stepped down to %g after the polish: polished", lower)
             return "polished"
     if start is not None and (polish.best is None or start[0] <= polish.best[0]):
         # (also when the lower polish's best is its start, the same point)
         what = "answer" if start is down.answer else "best exactly safe point"
         polish.best = (start[0], start[1], f"the floored stage's {what} at floor {lower:g}")
     outcome = "floored" if polish.best is not None and polish.best[0] < before else "not lower"
-    log.info("floor stepped down to %g after a polish without an answer: %s", lower, outcome)
+    log.info("floor stepped down to %g after the polish: %s", lower, outcome)
     return outcome
 
 
