@@ -20,7 +20,12 @@ Stages (docs/numerics.md, "IPOPT iterations"):
 3. for backends with ``warm_duals``, at most ``reenter`` rounds of the polish
    that turn one switched-off column back on where the answer's Hessian
    block says sensing lowers the cost (:mod:`.nlp_reentry`; not on a re-plan's
-   longer graph with frozen steps).
+   longer graph with frozen steps);
+4. for backends with ``warm_duals``, after a polish without an answer or
+   one whose switched-off sensing still pays after the rounds, the floored
+   stage once more at ``floor * step_down`` from its answer and
+   multipliers, then the polish at that floor (:mod:`.nlp_stepdown`; not on
+   a frozen graph).
 
 A re-plan with the option ``resume`` (:mod:`.nlp_resume`) first resumes
 the polish alone from the earlier polish's answer and multipliers, when that
@@ -65,7 +70,8 @@ formulation or ``scale_means``; "no" without it), ``resumed_stage``
 answer skips it, ``polish_retry`` times: :data:`POLISH_RETRY`),
 ``sensing_stationary`` (the polish's answer is stationary for the sensing
 it switched off, :mod:`.nlp_stationary`; None when no polish answered),
-``sensing_reentered`` (the rounds of :mod:`.nlp_reentry` whose answer was taken).
+``sensing_reentered`` (the rounds of :mod:`.nlp_reentry` whose answer was taken),
+``floor_stepped_down`` (:func:`.nlp_stepdown.step_down`'s outcome; None when it did not run).
 """
 
 from __future__ import annotations
@@ -348,13 +354,14 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
                     and not problem.stop_requested:
                 _polish_further(problem, backend, second, first.answer[1], floor, polish_opts,
                                 min(int(polish), max_iter - first.used - second.used), prefix, common)
+            def solve(**kw: Any) -> Stage:
+                # one attempt of a stage that continues the polish (the rounds, the step-down)
+                return _solve_stage(problem, backend, Stage(), restarts=0, offset=problem.iterations, **kw, **common)
+
             stepping = resumable and bool(step_down) and not prefix
 
             def stepped_down() -> str | None:
                 # the floored stage at a lower floor, then its polish (nlp_stepdown)
-                def solve(**kw: Any) -> Stage:
-                    return _solve_stage(problem, backend, Stage(), restarts=0, offset=problem.iterations, **kw,
-                                        **common)
                 return nlp_stepdown.step_down(problem, first, second, floor, step_down, solve,
                                               _with_resume_options(backend, opts, first_opts), polish_opts,
                                               int(polish), max_iter - first.used - second.used)
@@ -364,9 +371,8 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
             if backend.warm_duals and reenter and not prefix:
                 # switched-off sensing whose block says it lowers the cost comes back on (nlp_reentry)
                 def again(bounds: Callable, duals: tuple, cap: int) -> Stage:
-                    return _solve_stage(problem, backend, Stage(), formulation="cholesky", floor=lower_floor,
-                                        opts=polish_opts, bounds=bounds, start=first.answer[1], max_iter=cap,
-                                        restarts=0, offset=problem.iterations, duals=duals, **common)
+                    return solve(formulation="cholesky", floor=lower_floor, opts=polish_opts, bounds=bounds,
+                                 start=first.answer[1], max_iter=cap, duals=duals)
                 reentered = nlp_reentry.reenter(problem, second, lower_floor, reenter, again, int(polish),
                                                 max_iter - first.used - second.used)
             if stepping and stepped is None and nlp_reentry.pays(problem, second):

@@ -64,7 +64,8 @@ def nlp_options(solver: str) -> dict[str, Option]:
         "reenter": Option(REENTER, "rounds after the polish that turn back on the switched-off sensing whose "
                                    "Hessian block says it lowers the cost, one step a round (solvers that take "
                                    "initial multipliers: IPOPT; 0: none)", count),
-        "step_down": Option(STEP_DOWN, "after a polish without an answer, the floored stage once more at floor x "
+        "step_down": Option(STEP_DOWN, "after a polish without an answer, or one whose switched-off sensing would "
+                                       "still pay after the reenter rounds, the floored stage once more at floor x "
                                        "step_down from its answer and multipliers, then the polish at that floor "
                                        "(solvers that take initial multipliers: IPOPT; 0: none)",
                             _check_step_down),

@@ -55,12 +55,9 @@ def reenter(problem: SmoothingProblem, polish: Stage, floor: float, rounds: int,
     taken."""
     taken = 0
     for _ in range(max(int(rounds), 0)):
-        if polish.answer is None or polish.solved is None or polish.z is None or polish.duals is None \
-                or problem.out_of_time() or problem.stop_requested or min(cap, left) <= 0:
+        if problem.out_of_time() or problem.stop_requested or min(cap, left) <= 0:
             break
-        nlp, solver, p = polish.solved
-        cols = _worth(nlp, polish.z, problem.model.data.alpha,
-                      descent_columns(nlp, solver, p, polish.z, polish.duals[1]))
+        cols = _paying(problem, polish)
         if not cols:
             break
         k, idx, v, w = min(cols, key=lambda c: c[3])
@@ -86,13 +83,18 @@ def reenter(problem: SmoothingProblem, polish: Stage, floor: float, rounds: int,
 
 def pays(problem: SmoothingProblem, polish: Stage) -> bool:
     """Whether ``polish``'s answer has a switched-off column whose sensing
-    pays (:func:`_worth`): the rounds' own test, e.g. after rounds that
-    did not turn it on."""
+    pays: the rounds' own test, e.g. after rounds that did not turn it on."""
+    return bool(_paying(problem, polish))
+
+
+def _paying(problem: SmoothingProblem, polish: Stage) -> list:
+    """The switched-off columns of ``polish``'s answer whose sensing pays
+    (:func:`_worth` of :func:`.nlp_stationary.descent_columns`); none
+    without an answer and its solve."""
     if polish.answer is None or polish.solved is None or polish.z is None or polish.duals is None:
-        return False
+        return []
     nlp, solver, p = polish.solved
-    return bool(_worth(nlp, polish.z, problem.model.data.alpha,
-                       descent_columns(nlp, solver, p, polish.z, polish.duals[1])))
+    return _worth(nlp, polish.z, problem.model.data.alpha, descent_columns(nlp, solver, p, polish.z, polish.duals[1]))
 
 
 def _worth(nlp: NLPProblem, z: np.ndarray, alpha: float, cols: list) -> list:

@@ -57,13 +57,15 @@ def step_down(problem: SmoothingProblem, first: Stage, polish: Stage, floor: flo
     """The step-down to ``floor * factor`` (module doc) after ``polish``
     (without an answer, or with one whose switched-off sensing would pay),
     merged into it: its attempts and iterations; the lower polish's answer
-    when taken (not costlier than any before), else a lower best point. ``solve(**kw)`` runs one attempt of
-    a stage (:func:`.nlp_engine._solve_stage`'s keywords); ``lower_opts``:
+    when taken (not costlier than any before), else, for a polish without
+    an answer, a lower best point. ``solve(**kw)`` runs one attempt of a
+    stage (:func:`.nlp_engine._solve_stage`'s keywords); ``lower_opts``:
     the plug-in's options of the lower floored stage, ``polish_opts`` of its
     polish. The lower stage gets at most 2 ``cap`` iterations, the polish
     ``cap``, both together ``left``. Returns None when it did not run, else
     "polished" (the lower polish answered), "floored" (the lower floored
-    stage's answer or best point is lower than any before) or "not lower"."""
+    stage's answer or best point is the polish's best, lower than any
+    before) or "not lower"."""
     if not factor or first.answer is None or first.z is None or first.duals is None or first.solved is None \
             or problem.out_of_time() or problem.stop_requested or min(cap, left) <= 0:
         return None
@@ -88,11 +90,13 @@ def step_down(problem: SmoothingProblem, first: Stage, polish: Stage, floor: flo
         if taken:
             log.info("floor stepped down to %g after the polish: polished", lower)
             return "polished"
-    if start is not None and (polish.best is None or start[0] <= polish.best[0]):
+    # (a polish with an answer keeps it: the run's answer is then that answer, not the best point)
+    if start is not None and polish.answer is None and (polish.best is None or start[0] <= polish.best[0]):
         # (also when the lower polish's best is its start, the same point)
         what = "answer" if start is down.answer else "best exactly safe point"
         polish.best = (start[0], start[1], f"the floored stage's {what} at floor {lower:g}")
-    outcome = "floored" if polish.best is not None and polish.best[0] < before else "not lower"
+    outcome = "floored" if polish.answer is None and polish.best is not None and polish.best[0] < before \
+        else "not lower"
     log.info("floor stepped down to %g after the polish: %s", lower, outcome)
     return outcome
 
