@@ -1,6 +1,6 @@
 """A polish stopped at its cap while its cost was still falling gets one
-more run of its cap from where it stopped (methods/nlp_engine.py,
-_still_lowering / _polish_further)."""
+more run of its cap from where it stopped (methods/nlp_stage.py still_lowering,
+methods/nlp_engine.py _polish_further)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import belief_nlp as bn
-from belief_nlp.methods import nlp_engine
+from belief_nlp.methods import nlp_stage
 from belief_nlp.methods.nlp_stage import STOPS, Stage
 
 
@@ -48,7 +48,7 @@ def test_still_lowering_reads_the_polishs_own_last_iterations():
     cap = 20
     falling = list(np.linspace(2.40, 2.30, cap))                 # 5e-3 over the last 10: going on
     flat = [2.3] * (cap - 11) + list(2.3 - 1e-8 * np.arange(11))  # creeping at its answer
-    assert nlp_engine._still_lowering(*_stage_and_history(falling), cap)
-    assert not nlp_engine._still_lowering(*_stage_and_history(flat), cap)
-    assert not nlp_engine._still_lowering(*_stage_and_history(falling, "Solve_Succeeded"), cap)
-    assert not nlp_engine._still_lowering(*_stage_and_history(falling[:15]), cap)        # stopped below its cap
+    assert nlp_stage.still_lowering(*_stage_and_history(falling), cap)
+    assert not nlp_stage.still_lowering(*_stage_and_history(flat), cap)
+    assert not nlp_stage.still_lowering(*_stage_and_history(falling, "Solve_Succeeded"), cap)
+    assert not nlp_stage.still_lowering(*_stage_and_history(falling[:15]), cap)        # stopped below its cap

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import belief_nlp as bn
-from belief_nlp.methods import nlp_stepdown
+from belief_nlp.methods import nlp_recorder, nlp_stepdown
 from belief_nlp.model import BeliefModel
 from belief_nlp.model.nlp_form import build_nlp
 
@@ -61,6 +61,33 @@ def test_sensing_that_would_pay_after_the_rounds_steps_the_floor_down():
     assert ccp.method == "auto:ipopt+ccp" and res.cost <= ccp.cost * (1 + 1e-6)
     auto = bn.smooth(sc, ws, alpha=1.0)
     assert auto.method == "auto:ipopt" and auto.cost == pytest.approx(res.cost, rel=1e-9)
+
+
+def test_a_polish_far_from_feasible_at_its_probe_ends_there_and_steps_down(monkeypatch):
+    """random-polygons map 2, K = 80, alpha 0.1: the polish's iterate PROBE
+    still violates the rows by more than PROBE_VIOLATION, so it ends there
+    and the step-down follows. Left to run (the probe pushed out of reach),
+    the same polish reaches its cap of 50 without an answer, and the
+    step-down then gives the same answer in 29 more iterations. Without a
+    step-down to follow, nothing is probed."""
+    from belief_nlp.families import generate
+
+    sc = generate("random-polygons", 2)
+    ws = _warm(sc, 80)
+    res = bn.smooth(sc, ws, alpha=0.1, method="ipopt")
+    first, polish = res.stats["attempts"][:2]
+    assert polish["return_status"] == "Far_From_Feasible" and polish["iter_count"] == nlp_recorder.PROBE
+    # the probed iterate, as the history recorded it: a Kalman row or a margin beyond the level
+    rec = [h for h in res.history if h.iteration == first["iter_count"] + nlp_recorder.PROBE][-1]
+    assert max(rec.kalman_gap, -rec.min_margin) > nlp_recorder.PROBE_VIOLATION
+    assert res.stats["floor_stepped_down"] == "polished" and res.success and bn.verify(sc, res.path).safe
+    alone = bn.smooth(sc, ws, alpha=0.1, method="ipopt", step_down=0)
+    assert alone.stats["attempts"][1]["return_status"] == "Maximum_Iterations_Exceeded"
+    monkeypatch.setattr(nlp_recorder, "PROBE", 10 ** 9)
+    full = bn.smooth(sc, ws, alpha=0.1, method="ipopt")
+    assert full.stats["attempts"][1]["return_status"] == "Maximum_Iterations_Exceeded"
+    assert full.stats["floor_stepped_down"] == "polished" and res.cost == pytest.approx(full.cost, rel=1e-6)
+    assert res.stats["iter_count"] <= full.stats["iter_count"] - 25
 
 
 def test_released_multipliers_are_those_of_the_floor_bounds(small_start):

@@ -25,7 +25,9 @@ Stages (docs/numerics.md, "IPOPT iterations"):
    one whose switched-off sensing still pays after the rounds, the floored
    stage once more at ``floor * step_down`` from its answer and
    multipliers, then the polish at that floor (:mod:`.nlp_stepdown`; not on
-   a frozen graph).
+   a frozen graph); with a step-down to follow, a polish whose iterate
+   :data:`.nlp_recorder.PROBE` still violates the rows by more than
+   ``PROBE_VIOLATION`` ends there (status "Far_From_Feasible").
 
 A re-plan with the option ``resume`` (:mod:`.nlp_resume`) first resumes
 the polish alone from the earlier polish's answer and multipliers, when that
@@ -96,7 +98,7 @@ from ..model.nlp_prefix import longer
 from .nlp_build import _CACHE, _GRAPHS, _base_key, clear_cache, solver_of  # noqa: F401 - _CACHE, _GRAPHS, clear_cache: re-exported
 from .nlp_options import POLISH_RETRY, REENTER, STEP_DOWN, nlp_options  # noqa: F401 - nlp_options: re-exported
 from .nlp_recorder import Recorder
-from .nlp_stage import STOPS, Stage, outcome, record_attempt, safe_points
+from .nlp_stage import STOPS, Stage, outcome, record_attempt, safe_points, still_lowering
 from .nlp_stationary import sensing_stationary
 
 __all__ = ["NLPBackend", "run_nlp", "clear_cache", "nlp_options"]
@@ -121,7 +123,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: Stage, *
                  margin: float, regularisation: float, floor: float, candidates: int, cache: bool, start: Layout,
                  max_iter: int, restarts: int, stall: int, offset: int, bar: Any,
                  bounds: Callable | None = None, duals: tuple | None = None, scale: float = 1.0,
-                 prefix: int = 0, rescue: dict | None = None) -> Stage:
+                 prefix: int = 0, rescue: dict | None = None, probe: bool = False) -> Stage:
     """The solver on one formulation from ``start``: attempts with restarts
     from the best exactly safe point (module doc), at most ``max_iter``
     iterations. ``bounds(nlp, point)`` -> (z0, lbz, ubz) replaces the NLP's
@@ -129,7 +131,9 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: Stage, *
     initial multipliers (a restart starts without them); ``scale`` != 1: the
     NLP with its means scaled (:mod:`.nlp_scaled`; the stage's ``duals`` are
     then the unscaled NLP's); ``rescue``: the plug-in's options of a restart
-    from the start when nothing safe was found below it (``stage_options["rescue"]``)."""
+    from the start when nothing safe was found below it (``stage_options["rescue"]``);
+    ``probe``: the recorder's stop of an attempt still far from feasible at
+    its iteration PROBE (:data:`.nlp_recorder.PROBE`)."""
     if not backend.calls_back:
         # fatrop's limit m allows m + 1 iterations by its own count (measured); no
         # callback records a point to restart from: only its rescue restarts it
@@ -141,7 +145,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: Stage, *
     stage.limit = int(max_iter)
     can_box = backend.kalman_box and "m_offset" in nlp.info
     recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0,
-                   runaway=bool(restarts) and can_box)
+                   runaway=bool(restarts) and can_box, probe=probe)
     recorder.offset = offset
     z_start = start
     stage.best = (problem.model.cost(start)[0], start, "the stage's start")
@@ -343,13 +347,15 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
                 and not problem.out_of_time() and not problem.stop_requested:
             # the floored answer senses >= floor^2 in every direction: switch the
             # directions held at the floor off and free the rest on the exact
-            # Cholesky NLP (docs/numerics.md, "IPOPT iterations")
+            # Cholesky NLP (docs/numerics.md, "IPOPT iterations"); with a step-down to
+            # follow, a polish still far from feasible at its iteration PROBE ends there
+            stepping = resumable and bool(step_down) and not prefix
             second = _solve_stage(problem, backend, Stage(), formulation="cholesky", floor=floor, opts=polish_opts,
                                   bounds=lambda nlp, lay: nlp.without_sensing(lay, floor), start=first.answer[1],
                                   max_iter=min(int(polish), max_iter - first.used), restarts=0,
                                   offset=problem.iterations, duals=first.duals if backend.warm_duals else None,
-                                  prefix=prefix, **common)
-            if backend.warm_duals and _still_lowering(problem, second, int(polish)) \
+                                  prefix=prefix, probe=stepping, **common)
+            if backend.warm_duals and still_lowering(problem, second, int(polish)) \
                     and first.used + second.used < max_iter and not problem.out_of_time() \
                     and not problem.stop_requested:
                 _polish_further(problem, backend, second, first.answer[1], floor, polish_opts,
@@ -357,8 +363,6 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
             def solve(**kw: Any) -> Stage:
                 # one attempt of a stage that continues the polish (the rounds, the step-down)
                 return _solve_stage(problem, backend, Stage(), restarts=0, offset=problem.iterations, **kw, **common)
-
-            stepping = resumable and bool(step_down) and not prefix
 
             def stepped_down() -> str | None:
                 # the floored stage at a lower floor, then its polish (nlp_stepdown)
@@ -415,28 +419,6 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         z, duals = (resume["z"], (resume["lam_x"], resume["lam_g"])) if first is direct else (first.z, first.duals)
         out.resume = nlp_resume.state(backend.plugin, key, floor, z, duals, prefix, polished, skip_next)
     return out
-
-
-#: a polish at its cap whose cost fell by more than POLISH_LOWERING (relative) over
-#: its last POLISH_TAIL iterations gets one more run of its cap from where it stopped
-#: (its variables, multipliers and switched-off sensing). Seen: a polish walking the
-#: means after a first stage at mu_min 3e-6 (notebook 03's case: 67 iterations to
-#: converge, 2.31369 at the cap of 50 against 2.31283); a polish creeping at its
-#: answer lowers its cost by < 1e-7 there (docs/numerics.md, "The first stage's
-#: barrier floor", the polish's cap)
-POLISH_TAIL, POLISH_LOWERING = 10, 1e-5
-
-
-def _still_lowering(problem: SmoothingProblem, polish: Stage, cap: int) -> bool:
-    """``polish`` stopped at its own cap while its cost was still falling
-    (the history's last POLISH_TAIL records, feasible or not)."""
-    if polish.status != STOPS["max_iter"] or polish.used < cap or polish.z is None or polish.duals is None:
-        return False
-    costs = [r.cost for r in problem.history[-polish.used:]]
-    if len(costs) <= POLISH_TAIL:
-        return False
-    before, now = costs[-POLISH_TAIL - 1], costs[-1]
-    return bool(np.isfinite(before) and np.isfinite(now) and before - now > POLISH_LOWERING * abs(now))
 
 
 def _polish_further(problem: SmoothingProblem, backend: NLPBackend, polish: Stage, anchor: Layout, floor: float,

@@ -28,6 +28,14 @@ RUNAWAY = 10.0
 #: in 92 inside the box) had 254 (docs/numerics.md, "The first stage's barrier floor")
 WALK, WALK_VIOLATION = 50, 10.0
 
+#: a polish (a stage told to ``probe``) whose iterate PROBE still violates the rows by
+#: more than PROBE_VIOLATION (scaled units) ends there ("far"): on the issue-21
+#: protocol (184 polishes per method) every polish that converged was below 0.012 at
+#: its iteration 20 (or done before it), and the 7 at K = 80 that ran to their cap of
+#: 50 without an answer were at 0.15-8.3; the step-down that follows them starts 30
+#: iterations earlier (docs/numerics.md, "A polish far from feasible")
+PROBE, PROBE_VIOLATION = 20, 0.05
+
 
 class Recorder(ca.Callback):
     """Iteration callback of a CasADi nlpsol: history, best feasible iterates, progress.
@@ -55,6 +63,7 @@ class Recorder(ca.Callback):
         self.stop_reason = ""
         self.stall = stall
         self.runaway = False                   # stop an iterate far outside the Kalman box (reset)
+        self.probe = False                     # stop at iterate PROBE when still far from feasible (reset)
         self.walk = 0                          # consecutive iterates violating the rows by > WALK_VIOLATION
         self.log_path: str | None = None       # the solver's log file, if its backend writes one
         self.best_cost = np.inf
@@ -91,13 +100,14 @@ class Recorder(ca.Callback):
         self._m = np.flatnonzero(ub < nlp.ubz)
         self._m_limit = RUNAWAY * ub[self._m]
 
-    def reset(self, keep: int, bar, stall: int, runaway: bool = False) -> None:
+    def reset(self, keep: int, bar, stall: int, runaway: bool = False, probe: bool = False) -> None:
         """Forget a previous solve (the recorder lives as long as its solver);
         ``runaway``: stop an attempt whose iterate leaves the Kalman box by
         the factor RUNAWAY (then ``stop_reason`` is "left_box") or whose
         iterates stay infeasible by WALK_VIOLATION for WALK iterations
-        ("walked")."""
-        self.keep, self.bar, self.stall, self.runaway = keep, bar, stall, runaway
+        ("walked"); ``probe``: stop an attempt whose iterate PROBE violates
+        the rows by more than PROBE_VIOLATION ("far")."""
+        self.keep, self.bar, self.stall, self.runaway, self.probe = keep, bar, stall, runaway, probe
         self.calls = self.offset = 0
         self.rows, self.zs, self.pvs, self.best = [], [], [], []
 
@@ -244,6 +254,11 @@ class Recorder(ca.Callback):
             # runaway that ended in Infeasible_Problem_Detected or Invalid_Number_Detected
             # hundreds of iterations later; stop so a restart inside the box can solve
             self.stop_reason = "left_box"
+            return True
+        if self.probe and self.calls - 1 == PROBE and viol > PROBE_VIOLATION:
+            # a polish this far from feasible this late has not converged in its cap
+            # (PROBE's measurements); the caller's step-down follows sooner
+            self.stop_reason = "far"
             return True
         self.walk = self.walk + 1 if viol > WALK_VIOLATION else 0
         if self.runaway and self.walk >= WALK:

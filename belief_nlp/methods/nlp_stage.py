@@ -17,7 +17,7 @@ from ..smoother.result import STATUSES, IterationRecord
 from .nlp_backend import NLPBackend
 from .nlp_recorder import Recorder
 
-__all__ = ["Stage", "STOPS", "safe_points", "record_attempt", "outcome"]
+__all__ = ["Stage", "STOPS", "safe_points", "record_attempt", "outcome", "still_lowering"]
 
 
 def safe_points(problem: SmoothingProblem, nlp: NLPProblem, recorder: Recorder, z_end: np.ndarray | None,
@@ -98,7 +98,29 @@ class Stage:
 
 
 STOPS = {"max_iter": "Maximum_Iterations_Exceeded", "time_limit": "Maximum_WallTime_Exceeded", "stalled": "Stalled",
-          "left_box": "Left_Kalman_Box", "walked": "Infeasible_Walk"}
+          "left_box": "Left_Kalman_Box", "walked": "Infeasible_Walk", "far": "Far_From_Feasible"}
+
+
+#: a polish at its cap whose cost fell by more than POLISH_LOWERING (relative) over
+#: its last POLISH_TAIL iterations gets one more run of its cap from where it stopped
+#: (its variables, multipliers and switched-off sensing). Seen: a polish walking the
+#: means after a first stage at mu_min 3e-6 (notebook 03's case: 67 iterations to
+#: converge, 2.31369 at the cap of 50 against 2.31283); a polish creeping at its
+#: answer lowers its cost by < 1e-7 there (docs/numerics.md, "The first stage's
+#: barrier floor", the polish's cap)
+POLISH_TAIL, POLISH_LOWERING = 10, 1e-5
+
+
+def still_lowering(problem: SmoothingProblem, polish: Stage, cap: int) -> bool:
+    """``polish`` stopped at its own cap while its cost was still falling
+    (the history's last POLISH_TAIL records, feasible or not)."""
+    if polish.status != STOPS["max_iter"] or polish.used < cap or polish.z is None or polish.duals is None:
+        return False
+    costs = [r.cost for r in problem.history[-polish.used:]]
+    if len(costs) <= POLISH_TAIL:
+        return False
+    before, now = costs[-POLISH_TAIL - 1], costs[-1]
+    return bool(np.isfinite(before) and np.isfinite(now) and before - now > POLISH_LOWERING * abs(now))
 
 
 def outcome(problem: SmoothingProblem, backend: NLPBackend, stages: list[Stage], max_iter: int) -> Outcome:
