@@ -61,7 +61,8 @@ def _off_blocks(nlp: NLPProblem, solver: Any, p: np.ndarray, z: np.ndarray, lam_
     diag = np.abs(L[steps][:, np.arange(d), np.arange(d)])
     spans = ~np.any((np.arange(d)[None, :] < first[:, None]) & (diag <= OFF), axis=1)
     idx = (off + steps[:, None] * t + np.arange(t)[None, :]).ravel()
-    sub = hess(z, p, 1.0, np.asarray(lam_g, float)).sparse().tocsr()[idx][:, idx].toarray()     # upper triangle
+    # the steps' rows and columns cut in CasADi (half the time of the whole Hessian through scipy)
+    sub = hess(z, p, 1.0, np.asarray(lam_g, float))[idx.tolist(), idx.tolist()].full()      # upper triangle
     sub = sub + sub.T - np.diag(np.diag(sub))
     n = steps.size
     blocks = sub.reshape(n, t, n, t)[np.arange(n), :, np.arange(n), :]       # (n, t, t): each step's own
