@@ -30,10 +30,11 @@ WALK, WALK_VIOLATION = 50, 10.0
 
 #: a polish (a stage told to ``probe``) whose iterate PROBE still violates the rows by
 #: more than PROBE_VIOLATION (scaled units) ends there ("far"): on the issue-21
-#: protocol (184 polishes per method) every polish that converged was below 0.012 at
-#: its iteration 20 (or done before it), and the 7 at K = 80 that ran to their cap of
-#: 50 without an answer were at 0.15-8.3; the step-down that follows them starts 30
-#: iterations earlier (docs/numerics.md, "A polish far from feasible")
+#: protocol (184 polishes per method) none that converged was above it there (the
+#: closest: 0.012 one iterate later, converged at 45), and the 7 at K = 80 that ran to
+#: their cap of 50 without an answer were all above it (0.027-8.3 one iterate later,
+#: six above 0.15); the step-down that follows them starts 30 iterations earlier
+#: (docs/numerics.md, "A polish far from feasible")
 PROBE, PROBE_VIOLATION = 20, 0.05
 
 
