@@ -35,7 +35,7 @@ import numpy as np
 from ._limits import MAX_VERIFY_SAMPLES
 from .errors import ValidationError
 from .path import BeliefPath, result_path
-from ._verify_distances import _psd_part, _sqdist, _support
+from ._verify_distances import _chol2, _psd_part, _sqdist, _support
 from ._verify_kalman import kalman_checks
 from .polytope import Polytope
 from .risk import RiskBound, path_risk
@@ -416,10 +416,13 @@ def _measure(scenario: Scenario, path: BeliefPath, hazards: list[Polytope], name
     Wk = path.transition_noise
     s = np.linspace(0.0, 1.0, n_samples)
     margins = np.empty((K, len(hazards)))
+    # the samples are the same for every hazard: their covariances' factor too (2-D polygons)
+    xs = (path.x[:-1, None, :] + s[None, :, None] * np.diff(path.x, axis=0)[:, None, :]).reshape(-1, scenario.dim)
+    Ps = (P_post[:-1, None] + s[None, :, None, None] * Wk[:, None]).reshape(-1, scenario.dim, scenario.dim)
+    polygons = scenario.dim == 2 and any(h.n_faces > 1 and h.vertices is not None for h in hazards)
+    chol = _chol2(Ps) if polygons else None
     for j, h in enumerate(hazards):
-        xs = path.x[:-1, None, :] + s[None, :, None] * np.diff(path.x, axis=0)[:, None, :]
-        Ps = P_post[:-1, None] + s[None, :, None, None] * Wk[:, None]
-        vals = _sqdist(xs.reshape(-1, scenario.dim), Ps.reshape(-1, scenario.dim, scenario.dim), h)
+        vals = _sqdist(xs, Ps, h, chol=chol)
         vals = vals.reshape(K, n_samples)
         # refine around the worst sample of each transition (a NaN sample counts as the worst)
         i = np.argmin(np.where(np.isnan(vals), -np.inf, vals), axis=1)

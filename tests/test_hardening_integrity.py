@@ -124,8 +124,8 @@ def test_nan_margins_fail_instead_of_passing(paper, planned, monkeypatch):
     assert bn.verify(paper, path).safe
     real = verify_module._sqdist
 
-    def nan_for_obstacle_3(x, P, poly):
-        out = real(x, P, poly)
+    def nan_for_obstacle_3(x, P, poly, **kw):
+        out = real(x, P, poly, **kw)
         return np.full_like(out, np.nan) if poly.name == "obstacle 3" else out
 
     monkeypatch.setattr(verify_module, "_sqdist", nan_for_obstacle_3)

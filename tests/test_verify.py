@@ -287,3 +287,30 @@ def test_sampled_margins_agree_with_exact_geometry_3d_walls():
     diff = rep.transition_margins[:, len(sc.obstacles):] - exact
     scale = np.abs(exact) + sc.chi2
     assert np.all(diff >= -1e-9 * scale) and np.all(diff <= 1e-3 * scale)
+
+
+def test_the_closed_form_2x2_factor_is_the_stacked_cholesky_and_falls_back_like_it():
+    """The verifier factors every sampled 2x2 covariance in closed form
+    (``_chol2``, LAPACK's operations) and shares that factor across the
+    polygons: it equals ``np.linalg.cholesky`` of the same symmetrised,
+    jittered stack (to rounding: bit for bit with this machine's OpenBLAS),
+    and where one matrix is not positive definite the whole stack takes
+    ``_chol``'s PSD-part factors, as before; the polygon distances with a
+    shared factor equal those that factor per call."""
+    from belief_nlp._verify_distances import _chol, _chol2, _sqdist_polygon
+
+    rng = np.random.default_rng(3)
+    B = rng.normal(size=(5000, 2, 2)) * 10.0 ** rng.uniform(-6, 1, size=(5000, 1, 1))
+    P = B @ B.transpose(0, 2, 1) + 1e-12 * np.eye(2)
+    L = np.linalg.cholesky(0.5 * (P + P.transpose(0, 2, 1)) + 1e-30 * np.eye(2))
+    for got, want in zip(_chol2(P), (L[:, 0, 0], L[:, 1, 0], L[:, 1, 1])):
+        np.testing.assert_allclose(got, want, rtol=1e-14, atol=0)
+    V = np.array([[0.0, 0.0], [1.0, 0.0], [1.2, 0.8], [0.3, 1.1]])
+    x = rng.normal(size=(5000, 2))
+    assert np.array_equal(_sqdist_polygon(x, P, V, _chol2(P)), _sqdist_polygon(x, P, V))
+    P[7] = [[1.0, 0.0], [0.0, -1e-20]]            # not positive definite (its PSD part is)
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.cholesky(P[7])
+    L = _chol(P)
+    for got, want in zip(_chol2(P), (L[:, 0, 0], L[:, 1, 0], L[:, 1, 1])):
+        assert np.array_equal(got, want)
