@@ -31,6 +31,7 @@ def small():
     ({"solver_options": "x"}, "solver_options"),
     ({"solver_options": {"no_such_setting": 1}, "method": "ccp"}, "solver_options"),
     ({"monotone_tol": float("nan"), "method": "ccp"}, "monotone_tol"), ({"rho": -1.0, "method": "ccp"}, "rho"),
+    ({"rho": 1.97e19, "method": "ccp"}, "rho"),  # the fuzz test's: no Clarabel answer, SCS 28 s for 2 iterations
     # ints no float can hold (the fuzz test's 10**400 overflowed inside the run)
     ({"alpha": 10**400}, "alpha"), ({"monotone_tol": 10**400, "method": "ccp"}, "monotone_tol"),
     ({"floor": 10**400, "method": "ipopt"}, "floor"),
@@ -295,3 +296,25 @@ def test_check_of_a_point_seen_before_is_the_same_proof():
     first.point.x[1, 0] += 1e-3
     again = prob.check(z)
     assert again is not first and again.margin == prob._check(z).margin
+
+
+def test_a_checks_exact_minimum_is_of_the_point_it_checked():
+    """Check.upper (the exact minimisation, not part of the proof) is
+    computed when first read, from the point as it was checked: changing
+    the point afterwards does not change it; and it bounds the proof from
+    above (margin <= upper)."""
+    from belief_nlp.model import BeliefModel
+    from belief_nlp.smoother.context import SmoothingProblem
+
+    sc, path = paper_multi_path_pair(steps_per_segment=2)
+    ws = bn.warm_start(sc, path)
+    prob = SmoothingProblem(sc, ws, BeliefModel(sc, ws.K, 0.1), max_iter=10, tol=1e-4, time_limit=None,
+                            t0=time.perf_counter(), solver=None, solver_options={}, progress=False,
+                            keep_iterates=False, callback=None, method="test")
+    z = prob.start.copy()
+    chk = prob._check(z)
+    assert "upper" not in vars(chk)                 # not computed yet
+    want = prob._check(z.copy()).upper
+    z.x[1:-1] += 0.05                               # the checked point moves (chk.point may be z itself)
+    chk.point.x[1:-1] += 0.05
+    assert chk.upper == want and chk.margin <= chk.upper

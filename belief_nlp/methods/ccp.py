@@ -411,6 +411,22 @@ def _positive(v: Any) -> str | None:
     return None if (real(v) or 0) > 0 else "must be a number > 0"
 
 
+#: a fixed split weight scales the two halves of the step's norm apart, sqrt(rho) dv
+#: against dx / sqrt(rho): on the fuzz tests' case (paper-multi, K = 5) 1e-20 .. 1e15
+#: solved in 0.02-0.08 s, 1e16 in 0.37 s, and from 1e18 on Clarabel had no answer and SCS
+#: crawled (8 s to a time limit of 8 s; 28 s for two iterations without one)
+RHO_RANGE = (1e-12, 1e12)
+
+
+def _check_rho(v: Any) -> str | None:
+    if v is None:
+        return None
+    lo, hi = RHO_RANGE
+    return _positive(v) or (None if lo <= float(v) <= hi else
+                            f"must be within [{lo:g}, {hi:g}] (scaled units): beyond, the step's cone is too "
+                            f"badly scaled for its solvers; got {float(v):g}")
+
+
 def _callable_or_none(v: Any) -> str | None:
     return None if v is None or callable(v) else "must be None or a callable"
 
@@ -428,8 +444,8 @@ METHOD = register(Method(
     iteration="one convex (SDP) step",
     options={
         "monotone_tol": Option(1e-7, "relative cost increase that ends the run (non_monotone)", nonneg),
-        "rho": Option(None, "fixed split weight of h2 (None: adapted per pair)",
-                      lambda v: None if v is None else _positive(v)),
+        "rho": Option(None, f"fixed split weight of h2 (None: adapted per pair), within "
+                            f"[{RHO_RANGE[0]:g}, {RHO_RANGE[1]:g}]", _check_rho),
         "cache_dir": Option(None, "disk cache of compiled problems: None (the process's: set_disk_cache, "
                                   "off by default), False (memory only), True (user cache), or a folder",
                             lambda v: None if v is None or isinstance(v, (bool, str, Path)) else

@@ -11,6 +11,7 @@ method reports in the same terms (docs/architecture.md, "The contract").
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import time
 from collections import OrderedDict
@@ -53,7 +54,8 @@ class Check:
         rigorous lower bound on the continuous-time squared Mahalanobis
         clearance minus chi2).
     upper : the exact 1-D minimisation's value minus chi2 (an upper bound,
-        attained at some s); margin <= upper up to rounding.
+        attained at some s); margin <= upper up to rounding. Not part of the
+        proof: computed when first read (``upper_of``), NaN if it cannot be.
     target : smallest containment margin of the final posterior (scaled length).
     accept : the margin the policy requires (a fraction of chi2, absolute).
     point : the point, with certificates repaired where its own failed.
@@ -62,9 +64,17 @@ class Check:
     point: Layout
     margin: float
     target: float
-    upper: float = float("nan")
+    upper_of: Callable[[], float] | None = field(default=None, repr=False, compare=False)
     accept: float = 0.0
     target_accept: float = 0.0
+
+    @functools.cached_property
+    def upper(self) -> float:
+        # the exact minimisation costs as much as the rest of a check and no method reads it
+        try:
+            return float("nan") if self.upper_of is None else float(self.upper_of())
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+            return float("nan")
 
     @property
     def safe(self) -> bool:
@@ -251,7 +261,6 @@ class SmoothingProblem:
                 z = z.copy()
                 z.lam = np.maximum(z.lam, 0.0)
             segments = self.model.segments(z)
-            tm = transition_minimiser(*segments, self.hazards_scaled)
             start, end = self.model.transition_margins(z)
             out = z
             bad = ~(np.minimum(start, end) >= accept)
@@ -261,10 +270,13 @@ class SmoothingProblem:
                 out.lam = np.where(bad[..., None], lam, z.lam)
                 start, end = self.model.transition_margins(out)
             lower = float(np.min(np.minimum(start, end)))
-            upper = float(np.min(tm.dist2) - D.chi2)
             target = float(np.min(self.model.target_margins(out)))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             return Check(z, float("nan"), float("nan"), accept=accept)
+        hazards, seg = self.hazards_scaled, tuple(np.array(a) for a in segments)   # (views of z's means: copied)
+
+        def upper() -> float:
+            return float(np.min(transition_minimiser(*seg, hazards).dist2) - D.chi2)
         return Check(out, lower if np.isfinite(lower) else float("nan"), target, upper, accept,
                      self.policy.target)
 
@@ -308,11 +320,11 @@ class SmoothingProblem:
                 tau = np.minimum(proven, tau_hi)
             out.tau = np.clip(tau, tau_lo, tau_hi)
             margin = D.chi2 * (1.0 - total / D.budget)
-            upper = D.chi2 * (1.0 - float(np.sum(tail(tm.dist2))) / D.budget)
+            upper = D.chi2 * (1.0 - float(np.sum(tail(tm.dist2))) / D.budget)   # tm read above: computed here
             target = float(np.min(model.target_margins(out)))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             return Check(z, float("nan"), float("nan"), accept=accept)
-        return Check(out, margin if np.isfinite(margin) else float("nan"), target, upper, accept,
+        return Check(out, margin if np.isfinite(margin) else float("nan"), target, lambda: upper, accept,
                      self.policy.target)
 
     def repair(self, chk: Check) -> Check | None:
