@@ -320,7 +320,8 @@ class SmoothingProblem:
                 tau = np.minimum(proven, tau_hi)
             out.tau = np.clip(tau, tau_lo, tau_hi)
             margin = D.chi2 * (1.0 - total / D.budget)
-            upper = D.chi2 * (1.0 - float(np.sum(tail(tm.dist2))) / D.budget)   # tm read above: computed here
+            # (the exact minimum is computed here anyway: the weak pairs above need it)
+            upper = D.chi2 * (1.0 - float(np.sum(tail(tm.dist2))) / D.budget)
             target = float(np.min(model.target_margins(out)))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             return Check(z, float("nan"), float("nan"), accept=accept)
