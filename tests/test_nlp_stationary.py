@@ -138,3 +138,23 @@ def test_three_dimensions_and_methods_without_a_polish(monkeypatch):
     assert res.stats["ipopt"]["sensing_stationary"] == (worst >= 0.0)
     none = bn.smooth(sc, planned.path, K=10, alpha=1.0, method="ipopt", polish=0)
     assert none.stats["sensing_stationary"] is None
+
+
+def test_one_answer_asked_again_is_not_evaluated_again(rp20, monkeypatch):
+    """``_off_blocks`` keeps its last result: asked again with the same
+    solver and equal arguments (copies) it hands that result back without
+    a Hessian evaluation; other multipliers are evaluated afresh and equal
+    a computation from scratch."""
+    sc, ws = rp20
+    _, args = _captured(monkeypatch, sc, ws, alpha=0.1)
+    nlp, solver, p, z, lam_g = args
+    first = nlp_stationary._off_blocks(nlp, solver, p, z, lam_g)
+    calls = []
+    real = nlp_stationary._blocks_of
+    monkeypatch.setattr(nlp_stationary, "_blocks_of", lambda *a: calls.append(a) or real(*a))
+    assert nlp_stationary._off_blocks(nlp, solver, np.array(p), np.array(z), np.array(lam_g)) is first
+    assert not calls
+    other = nlp_stationary._off_blocks(nlp, solver, p, z, 2.0 * np.asarray(lam_g))
+    assert len(calls) == 1 and other is not first
+    fresh = real(nlp, solver, np.asarray(p, float), np.asarray(z, float), 2.0 * np.asarray(lam_g, float))
+    assert all(np.array_equal(a, b) for a, b in zip(other, fresh))

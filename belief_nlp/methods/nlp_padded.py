@@ -59,7 +59,8 @@ class PaddedSolver:
         z = nlp["x"]
         self.n = int(z.shape[0])
         free = type(z).sym("belief_nlp_pad", self.pad)
-        given = {k: _padded(options[k], k, self.n, self.pad) for k in DERIVATIVES if k in options}
+        # given derivative functions on the padded x: the free variable's entries are zeros
+        given = {k: _resized(options[k], k, self.n + self.pad) for k in DERIVATIVES if k in options}
         self.solver = ca.nlpsol(name, plugin, {**nlp, "x": ca.vertcat(z, free)}, {**options, **given})
         self._own: dict = {}
 
@@ -83,24 +84,12 @@ class PaddedSolver:
         if name not in self._own:
             fn = self.solver.get_function(name)
             option = next((k for k, v in DERIVATIVES.items() if v == name), None)
-            self._own[name] = fn if option is None else _unpadded(fn, option, self.n)
+            self._own[name] = fn if option is None else _resized(fn, option, self.n)   # the free variable at 0
         return self._own[name]
 
 
 #: which dimensions of each derivative function's last output run over x (rows, columns)
 _X_DIMS = {"grad_f": (True, False), "jac_g": (False, True), "hess_lag": (True, True)}
-
-
-def _padded(fn: ca.Function, option: str, n: int, pad: int) -> ca.Function:
-    """Derivative function ``fn`` of an NLP in x (n) as the padded NLP's (x, free):
-    nothing reads the free variables, so their gradient, Jacobian columns and
-    Hessian rows are zeros."""
-    return _resized(fn, option, n + pad)
-
-
-def _unpadded(fn: ca.Function, option: str, n: int) -> ca.Function:
-    """The padded NLP's derivative function ``fn`` on the NLP's own x (n): the free variables at 0."""
-    return _resized(fn, option, n)
 
 
 def _resized(fn: ca.Function, option: str, n: int) -> ca.Function:

@@ -39,18 +39,35 @@ __all__ = ["sensing_stationary", "descent_columns"]
 OFF = 1e-5
 
 
+#: the last :func:`_off_blocks` call, [solver, p, z, lam_g, result]: one polished
+#: answer is asked up to three times (the re-entry rounds, the step-down's test
+#: after them, ``sensing_stationary``), each a Hessian evaluation
+_LAST: list = []
+
+
 def _off_blocks(nlp: NLPProblem, solver: Any, p: np.ndarray, z: np.ndarray, lam_g: np.ndarray):
     """The steps with a switched-off column, which columns are off, each such
     step's own Hessian block (its t entries of L) and whether the on columns
     before its first off column determine G_k; None when the solver has no
-    Hessian function to ask."""
+    Hessian function to ask. The same solver at equal arguments: the last
+    result again."""
+    p, z, lam_g = (np.asarray(a, float) for a in (p, z, lam_g))
+    if _LAST and _LAST[0] is solver and all(np.array_equal(a, b) for a, b in zip(_LAST[1:4], (p, z, lam_g))):
+        return _LAST[4]
+    found = _blocks_of(nlp, solver, p, z, lam_g)
+    _LAST[:] = [solver, p.copy(), z.copy(), lam_g.copy(), found]
+    return found
+
+
+def _blocks_of(nlp: NLPProblem, solver: Any, p: np.ndarray, z: np.ndarray, lam_g: np.ndarray):
+    """:func:`_off_blocks` computed."""
     try:
         hess = solver.get_function("nlp_hess_l")
     except RuntimeError:
         return None
     tri, d, K, off = nlp.info["tri"], nlp.info["d"], nlp.info["K"], nlp.info["sensing_offset"]
     t = len(tri)
-    L = lower_stack(np.asarray(z, float)[off:off + K * t].reshape(K, t), tri, d)
+    L = lower_stack(z[off:off + K * t].reshape(K, t), tri, d)
     off_cols = np.linalg.norm(L, axis=1) <= OFF                  # (K, d): switched-off columns
     steps = np.flatnonzero(off_cols.any(axis=1))
     if steps.size == 0:
@@ -62,7 +79,7 @@ def _off_blocks(nlp: NLPProblem, solver: Any, p: np.ndarray, z: np.ndarray, lam_
     spans = ~np.any((np.arange(d)[None, :] < first[:, None]) & (diag <= OFF), axis=1)
     idx = (off + steps[:, None] * t + np.arange(t)[None, :]).ravel()
     # the steps' rows and columns cut in CasADi (half the time of the whole Hessian through scipy)
-    sub = hess(z, p, 1.0, np.asarray(lam_g, float))[idx.tolist(), idx.tolist()].full()      # upper triangle
+    sub = hess(z, p, 1.0, lam_g)[idx.tolist(), idx.tolist()].full()      # upper triangle
     sub = sub + sub.T - np.diag(np.diag(sub))
     n = steps.size
     blocks = sub.reshape(n, t, n, t)[np.arange(n), :, np.arange(n), :]       # (n, t, t): each step's own
