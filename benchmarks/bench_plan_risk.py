@@ -29,8 +29,6 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import numpy as np  # noqa: E402
-
 import belief_nlp as bn  # noqa: E402
 from belief_nlp.risk import path_risk  # noqa: E402
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import belief_nlp as bn
-from belief_nlp.errors import SolverError, ValidationError
+from belief_nlp.errors import ValidationError
 from belief_nlp.methods.ipopt import map_status
 from belief_nlp.model import BeliefModel
 from belief_nlp.model.nlp_form import FORMULATIONS, build_nlp

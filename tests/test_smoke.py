@@ -1,5 +1,3 @@
-import numpy as np
-
 import belief_nlp as bn
 
 
