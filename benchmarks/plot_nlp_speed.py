@@ -44,10 +44,10 @@ def main() -> None:
     args = ap.parse_args()
     by_method = _cases(args.records)
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.9))
-    panels = (("wall_s", "wall s per call", True), ("iterations", "iterations per call", True),
-              ("per_iteration_ms", "ms per iteration", True))
+    panels = (("wall_s", "wall s per call"), ("iterations", "iterations per call"),
+              ("per_iteration_ms", "ms per iteration"))
     n_methods = len(by_method)
-    for ax, (key, label, log) in zip(axes, panels):
+    for ax, (key, label) in zip(axes, panels):
         for i, (m, cases) in enumerate(by_method.items()):
             Ks = sorted({c["K"] for c in cases})
             shift = (i - (n_methods - 1) / 2) * 0.06
@@ -67,10 +67,10 @@ def main() -> None:
                 ax.plot([80 / 1.15, 80 * 1.15], [GROWTH * np.median(auto40)] * 2, "k-", lw=2)
             ax.plot([], [], "k-", lw=2, label="issue 21's targets for auto")
         ax.set_xscale("log")
-        ax.set_yscale("log" if log else "linear")
-        if log:   # 1-2-5 ticks in plain numbers: the panels span one to two decades
-            ax.yaxis.set_major_locator(ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
-            ax.yaxis.set_major_formatter(ticker.FormatStrFormatter("%g"))
+        ax.set_yscale("log")
+        # 1-2-5 ticks in plain numbers: each panel spans one to two decades
+        ax.yaxis.set_major_locator(ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_major_formatter(ticker.FormatStrFormatter("%g"))
         ax.set_xticks([20, 40, 80], ["20", "40", "80"])
         ax.minorticks_off()
         ax.set_xlabel("K (steps)")
