@@ -6,7 +6,9 @@ seed=s, noise="per_step")``), alpha 0.1 and 1.0, K = 20 (seeds 0-9), 40
 (0-4) and 80 (0-2); every method smooths the same warm start in one process
 after a warm-up call per (K, method) (the NLP and solver are built then).
 SQP gets a time limit of 10x IPOPT's wall time on the same case (the
-issue's bound), so a run that would take longer shows as ``time_limit``.
+issue's bound), so a run that would take longer shows as ``time_limit``;
+``--sqp-limit F`` sets another factor, ``--sqp-limit 0`` none (every SQP
+run to its own end: the uncensored ratios).
 A fresh subprocess measures the first call's extra cost at K = 20.
 
 Per case and method: status, iterations (the solver's own count), wall and
@@ -167,6 +169,8 @@ def main() -> None:
                     help="also random-polygons maps 0..n-1 (one plan each, planner seed 0)")
     ap.add_argument("--families", nargs="+", default=None, help="only these families (paper-multi, random-polygons)")
     ap.add_argument("--out", type=Path, default=HERE / "nlp_speed.json")
+    ap.add_argument("--sqp-limit", type=float, default=10.0, metavar="F",
+                    help="stop SQP at F x IPOPT's wall on the same case (default 10, the issue's bound; 0: no limit)")
     ap.add_argument("--first-calls", type=int, default=0, metavar="N",
                     help="only the first call's extra cost: N fresh processes per method and alpha")
     args = ap.parse_args()
@@ -182,7 +186,8 @@ def main() -> None:
                         "nodes": 500, "noise": "per_step", "alpha": [0.1, 1.0],
                         # numba and numpy plans part at rounding ties: other warm starts, seed by seed
                         "planner_backend": resolve_backend("auto", 2, "entropy"),
-                        "sqp_time_limit": "10x IPOPT wall on the same case"},
+                        "sqp_time_limit": (f"{args.sqp_limit:g}x IPOPT wall on the same case" if args.sqp_limit > 0
+                                           else "none")},
            "first_call": {m: first_call(m) for m in methods if m != "sqp"},
            # at alpha 0.1 auto's answer on this case is stationary in S: no CCP polish, no conic step built
            "first_call_alpha_0.1": {m: first_call(m, 0.1) for m in methods if m != "sqp"}}
@@ -203,8 +208,8 @@ def main() -> None:
                                 bn.smooth(sc, ws, method=m, alpha=a, time_limit=60.0)
                             warmed.add((id(sc), m))
                         kw = {}
-                        if m == "sqp" and ipopt_wall is not None:
-                            kw["time_limit"] = max(10 * ipopt_wall, 1.0)
+                        if m == "sqp" and ipopt_wall is not None and args.sqp_limit > 0:
+                            kw["time_limit"] = max(args.sqp_limit * ipopt_wall, 1.0)
                         r = _run(sc, ws, m, alpha, **kw)
                         if m == "ipopt":
                             ipopt_wall = r["wall_s"]
