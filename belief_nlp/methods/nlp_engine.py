@@ -143,7 +143,7 @@ def _solve_stage(problem: SmoothingProblem, backend: NLPBackend, stage: Stage, *
                                                    floor, max(int(candidates), 0), cache, scale, prefix)
     stage.build_time = time.perf_counter() - t_build
     stage.limit = int(max_iter)
-    can_box = backend.kalman_box and "m_offset" in nlp.info
+    can_box = backend.kalman_box and nlp.has_kalman_box
     recorder.reset(keep=max(int(candidates), 0), bar=bar, stall=stall if restarts else 0,
                    runaway=bool(restarts) and can_box, probe=probe)
     recorder.offset = offset

@@ -97,7 +97,7 @@ class Recorder(ca.Callback):
             self._parts_buf.set_arg(1, memoryview(self.pv))
         # the free entries of the lifted factors M_k and RUNAWAY times their Kalman box
         # (NLPProblem.kalman_box; M is never scaled, nlp_scaled; a stage-ordered form has none)
-        _, ub = nlp.kalman_box(nlp.lbz, nlp.ubz) if "m_offset" in nlp.info else (None, nlp.ubz)
+        _, ub = nlp.kalman_box(nlp.lbz, nlp.ubz) if nlp.has_kalman_box else (None, nlp.ubz)
         self._m = np.flatnonzero(ub < nlp.ubz)
         self._m_limit = RUNAWAY * ub[self._m]
 

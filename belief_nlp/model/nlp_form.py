@@ -161,6 +161,13 @@ class NLPProblem:
             raise ValidationError("formulation", "without_sensing() needs the 'cholesky' NLP")
         return self.switch_off(self.pack(lay), self.lbz, self.ubz, floor, slack)
 
+    @property
+    def has_kalman_box(self) -> bool:
+        """Whether the NLP lifts Q_k into factors M_k (info's "m_offset"
+        places them), so that :meth:`kalman_box` bounds something: a
+        stage-ordered form or an NLP with Q from the recursion has none."""
+        return "m_offset" in self.info
+
     def kalman_box(self, lbz: np.ndarray, ubz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Copies of the bounds with every free entry of the lifted factors M_k
         within +-sqrt((W^-1)_ii) (row i): Q_k = (Y_{k-1}^-1 + W)^-1 < W^-1 on
@@ -168,7 +175,7 @@ class NLPProblem:
         stops Newton steps that grow Q_k a thousandfold (docs/numerics.md,
         "The Kalman box"). Unchanged for an NLP without lifted Q."""
         lbz, ubz = np.array(lbz, float), np.array(ubz, float)
-        if "m_offset" not in self.info:
+        if not self.has_kalman_box:
             return lbz, ubz
         K, tri, off = self.info["K"], self.info["tri"], self.info["m_offset"]
         cap = np.tile(np.sqrt(np.diag(np.linalg.inv(self.model.data.W)))[[i for i, _ in tri]], K - 1)

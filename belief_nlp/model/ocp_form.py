@@ -83,6 +83,9 @@ class OCPProblem:
     nu: list
     ng: list
     info: dict = field(default_factory=dict)
+    #: no Kalman box on this form (NLPProblem.has_kalman_box): the source's
+    #: lifted factors sit elsewhere here, and fatrop takes no runaway stop
+    has_kalman_box = False
 
     @property
     def formulation(self) -> str:
