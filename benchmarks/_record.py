@@ -1,6 +1,6 @@
 """Shared by the benchmark scripts: run cases in a process pool and write one
 JSON record (machine, load averages before and after, version, arguments,
-summary table, per-case records)."""
+summary table, per-case records); write a figure next to the records."""
 
 from __future__ import annotations
 
@@ -57,3 +57,11 @@ def wait_for_compiled(folder: Path, expected: int, limit_s: float = 3600.0) -> f
     waited = time.monotonic() - t0
     print(f"compiled {len(list(folder.glob('*.lib.so')))} libraries in {waited:.0f} s", flush=True)
     return waited
+
+
+def write_figure(fig, out: Path, dpi: int = 110) -> None:
+    """Save a matplotlib figure to ``out`` (its folder made), close it, say where."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    fig.clf()
+    print(f"wrote {out}")

@@ -20,6 +20,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib import ticker  # noqa: E402
 
+from _record import write_figure  # noqa: E402
+
 HERE = Path(__file__).resolve().parent / "results"
 COLOURS = {"auto": "tab:blue", "ipopt": "tab:orange", "sqp": "tab:green", "fatrop": "tab:red", "ccp": "tab:purple"}
 #: the issue's wall targets for `auto` (s) and the growth bound K = 80 / K = 40
@@ -80,9 +82,7 @@ def main() -> None:
     fig.suptitle("Issue-21 protocol: paper-multi and random-polygons, per-step N = 500 plans, alpha 0.1 and 1"
                  + " (SQP stopped at 10x IPOPT's wall)" * ("sqp" in by_method), fontsize=9)
     fig.tight_layout(rect=(0, 0.08, 1, 0.95))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=110)
-    print(f"wrote {args.out}")
+    write_figure(fig, args.out)
 
 
 if __name__ == "__main__":

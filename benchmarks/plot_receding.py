@@ -17,6 +17,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from _record import write_figure  # noqa: E402
+
 HERE = Path(__file__).resolve().parent / "results"
 
 
@@ -51,9 +53,7 @@ def main() -> None:
         ax.grid(True, axis="y", alpha=0.3)
     fig.legend(fontsize=8, loc="lower center", ncol=2)
     fig.tight_layout(rect=(0, 0.07, 1, 1))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=110)
-    print(f"wrote {args.out}")
+    write_figure(fig, args.out)
 
 
 if __name__ == "__main__":
