@@ -148,6 +148,38 @@ def test_sliver_tetrahedron_regression(pts):
     assert rel(2 * lam @ (poly.A @ x - poly.b) - v @ P @ v, tm.dist2[4, 0]) < 1e-6
 
 
+# local hypothesis seed 2085 of test_transition_clearance_3d_vs_sampling:
+# hulls with coordinates of 2e-7 next to 0 and 1, so that two or three of
+# their faces have nearly equal normals and offsets 2e-7 apart
+SLIVER_HULLS = [
+    ([[0.5, 0, 2e-7], [0, 2e-7, 1], [2e-7, 1, 2e-7], [2e-7, 2e-7, 1], [2e-7, 2e-7, 2e-7]], 7),
+    ([[0.125, 0, 2e-7], [0, 2e-7, 1], [2e-7, 1, 2e-7], [2e-7, 2e-7, 1], [2e-7, 2e-7, 2e-7]], 7),
+    ([[7.8125e-3, 0, 2e-7], [2e-7, 0, 2e-7], [2e-7, -1, 2e-7], [1, 2e-7, 0], [2e-7, 2e-7, 2e-7],
+      [2e-7, 2e-7, -1]], 9),
+]
+
+
+@pytest.mark.parametrize("pts, pair", SLIVER_HULLS, ids=["vertex", "vertex-narrow", "off-vertex"])
+def test_near_parallel_faces_regression(pts, pair):
+    """At the vertex of two near-parallel faces the face solve gives mu of
+    +-2e9 (+-2e11 on the third hull). It used to give the minimisation over
+    s wrong slopes (stopped 2.9e-6 above the minimum), a certificate with a
+    negative entry (lower bound 0: a clear pair not called clear), and on
+    the third hull a point off the vertex, outside the hull, whose distance
+    was 1.2e-7 *below* the minimum. Now the certificate and the slopes come
+    from the candidate of the largest dual value, and a vertex's computed
+    point must lie inside every plane: exact, tight and decided."""
+    pts = np.array(pts)
+    poly = Polytope.from_vertices(pts[ConvexHull(pts).vertices])
+    x0, P0, x1, W = random_transitions(np.random.default_rng(0), 10, 3, p=(1e-5, 1e-1))
+    tm = assert_bracketed(poly, x0, P0, x1, W)
+    _, refined = oracle_transition_min(poly, x0, P0, x1, W, samples=SAMPLES)
+    assert np.all(rel(tm.dist2[:, 0], refined) < 1e-8)
+    assert rel(tm.lower[pair, 0], refined[pair]) < 1e-8
+    thr = 0.999 * refined[pair]
+    assert geo.transitions_clear(x0[pair], P0[pair], x1[pair], W[pair], [poly], thr)[0, 0]
+
+
 def test_sliver_triangle_regression():
     """Hypothesis's 2-D counterexample (seed 196): a triangle with a 1.8 deg
     vertex. Planar path: the certificate's rounding bound counted

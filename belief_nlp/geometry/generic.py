@@ -71,6 +71,52 @@ def _adjugate(B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return adj, np.einsum("...i,...i->...", r0, adj[..., 0])
 
 
+def _feasible(c: np.ndarray, G: np.ndarray, idx: np.ndarray, mu: np.ndarray, tol: np.ndarray) -> np.ndarray:
+    """Is each candidate point of a face (N, C) inside the other planes, to
+    ``tol`` (N,) plus rounding?
+
+    The residual G_{:,S} mu - c rounds to ~eps |G| |mu| (3e-8 seen on a
+    sliver's edge, mu ~ 1e10), so that is added to the slack. The rows of S
+    hold by construction (G_SS mu = c_S) up to that rounding and are not
+    tested: testing them dropped the minimiser's edge.
+    """
+    N, F = c.shape
+    n_ar = np.arange(N)[:, None, None]
+    GcS = G[n_ar[..., None], np.arange(F)[None, None, :, None], idx[:, :, None, :]]  # (N, C, F, k)
+    resid = np.einsum("ncfk,nck->ncf", GcS, mu) - c[:, None, :]
+    slack = tol[:, None, None] + 16 * np.finfo(float).eps * np.einsum("ncfk,nck->ncf", np.abs(GcS), np.abs(mu))
+    in_S = np.zeros(resid.shape, dtype=bool)
+    np.put_along_axis(in_S, idx, True, axis=-1)
+    return np.all((resid <= slack) | in_S, axis=-1)
+
+
+def _outside(c: np.ndarray, B: np.ndarray, u: np.ndarray, tol: np.ndarray) -> np.ndarray:
+    """Does each whitened point u (N, d) lie outside some plane, by more than
+    ``tol`` (N,) plus the rounding of B u - c? (N,)
+
+    B u - c is the residual of a real point, accurate to ~eps (|B| |u| + |c|)
+    however large the mu that made u was.
+    """
+    resid = np.einsum("nfd,nd->nf", B, u) - c
+    slack = tol[:, None] + 4 * (B.shape[-1] + 1) * np.finfo(float).eps * (
+        np.einsum("nfd,nd->nf", np.abs(B), np.abs(u)) + np.abs(c))
+    return np.any(resid > slack, axis=-1)
+
+
+def _vertex_checked(vals: np.ndarray, c: np.ndarray, B: np.ndarray, u: np.ndarray, vertex: np.ndarray,
+                    tol: np.ndarray) -> np.ndarray:
+    """``vals`` (N, C) with each pair's nearest vertex candidate dropped (inf)
+    until the point computed for it (u (N, C, d)) passes :func:`_outside`;
+    ``vertex`` (N, C) marks the candidates no other test covers."""
+    rows = np.arange(vals.shape[0])
+    while rows.size:
+        j = np.argmin(vals[rows], axis=-1)
+        bad = vertex[rows, j] & np.isfinite(vals[rows, j]) & _outside(c[rows], B[rows], u[rows, j], tol[rows])
+        vals[rows[bad], j[bad]] = np.inf
+        rows = rows[bad]
+    return vals
+
+
 @dataclass
 class _Eval:
     g: np.ndarray        # dist2 at the query            (N,)
@@ -81,17 +127,34 @@ class _Eval:
 
 def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
               dc: np.ndarray | None = None, dG: np.ndarray | None = None,
-              want_lam: bool = False, B: np.ndarray | None = None) -> _Eval:
+              want_lam: bool = False, B: np.ndarray | None = None, strict: bool = False) -> _Eval:
     """dist2 for N (ellipse, polytope) pairs, and s-derivatives when
     dc = dc/ds and dG = dG/ds are given.
 
     c (N, F) = b - A x,  G (N, F, F) = A P A^T,  midx (N,) polytope index;
     B (N, F, d) = A L with L L^T = P, when given, for the face solves
     (:func:`_solve_small`).
+
+    The nearest feasible candidate gives the value, and its certificate and
+    s-derivatives come with it. Where that is in doubt -- a sliver's vertex
+    (two near-parallel planes) solves to mu of +-1e9..1e11, which gives a
+    certificate with a negative entry (lower bound 0), wrong slopes (the
+    minimisation over s stopped 2.9e-6 above the minimum), and a computed
+    point off the vertex and outside the hull (a value 1.2e-7 *below* the
+    minimum) -- those pairs are evaluated again ``strict``ly: every vertex's
+    computed point must pass :func:`_outside`, and the certificate and the
+    slopes come from the candidate of the largest dual value
+    2 c_S^T mu - ||u||^2 among those with lam_S = -mu >= 0 (each bounds
+    dist2 from below, feasible or not; Danskin: dist2' is the s-derivative
+    of the dual function at its maximiser). At a regular minimiser both
+    rules pick the same candidate.
     """
     N, F = c.shape
     tol = 1e-9 * (np.max(np.abs(c), axis=-1) + ps.scale)
     best = np.where(np.all(c >= 0, axis=-1), 0.0, np.inf)  # inside: distance 0
+    dual = np.zeros(N)                                    # lam = 0 proves dist2 >= 0
+    doubt = np.zeros(N, dtype=bool)
+    dual_wanted = dc is not None or want_lam
     g1 = np.zeros(N)
     g2 = np.zeros(N)
     lam = np.zeros((N, F)) if want_lam else None
@@ -116,6 +179,7 @@ def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
             u = np.einsum("nckd,nck->ncd", BS, mu)
             val = np.einsum("ncd,ncd->nc", u, u)
         ok = mask & np.isfinite(val)
+        c_mu = val
         if k > 1:
             # Faces cut by (nearly) parallel planes -- slivers of a hull -- make
             # G_SS numerically singular and mu meaningless. A meaningful solve
@@ -124,30 +188,37 @@ def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
             # single-plane candidates, which remain).
             c_mu = np.einsum("nck,nck->nc", cS, mu)
             ok &= (val >= 0) & (np.abs(c_mu - val) <= 1e-7 * (1.0 + np.abs(val)))
+        if strict or np.any(sign_all):
+            lam_ok = _nonpositive(mu)                         # lam_S = -mu >= 0
         if np.any(sign_all):
             # an extra subset of a degenerate face counts only with lam_S >= 0
             # (its value equals the face's; its certificate must be valid)
-            lam_ok = np.all(mu <= 1e-9 * np.max(np.abs(mu), axis=-1, keepdims=True), axis=-1)
             ok &= lam_ok | ~sign_all[midx]
         if np.any(check_all):
-            GcS = G[n_ar[..., None], np.arange(F)[None, None, :, None], idx[:, :, None, :]]  # (N, C, F, k)
-            resid = np.einsum("ncfk,nck->ncf", GcS, mu) - c[:, None, :]
-            # plus the rounding of the product itself: on a sliver's edge mu
-            # is huge (1e10) and residuals round to ~eps |G| |mu| (3e-8
-            # seen), above the fixed part of the tolerance. The rows of S
-            # hold by construction (G_SS mu = c_S) and are not tested: theirs
-            # is only that rounding, and it dropped the minimiser's edge
-            slack = tol[:, None, None] + 16 * np.finfo(float).eps * np.einsum("ncfk,nck->ncf", np.abs(GcS), np.abs(mu))
-            in_S = np.zeros(resid.shape, dtype=bool)
-            np.put_along_axis(in_S, idx, True, axis=-1)
-            ok &= np.all((resid <= slack) | in_S, axis=-1) | ~check_all[midx]
-        val = np.where(ok, val, np.inf)
-        j = np.argmin(val, axis=-1)
-        vbest = val[rows, j]
-        better = vbest < best
+            ok &= _feasible(c, G, idx, mu, tol) | ~check_all[midx]
+        vals = np.where(ok, val, np.inf)
+        vertex = BS is not None and k == BS.shape[-1]
+        if strict:
+            if vertex:
+                vals = _vertex_checked(vals, c, B, u, ~check_all[midx], tol)
+            best = np.minimum(best, np.min(vals, axis=-1))
+            if not dual_wanted:
+                continue
+            q = np.where(ok & lam_ok, 2 * c_mu - val, -np.inf)
+            j = np.argmax(q, axis=-1)
+            better = q[rows, j] > dual
+            dual = np.where(better, q[rows, j], dual)
+        else:
+            j = np.argmin(vals, axis=-1)
+            better = vals[rows, j] < best
+            best = np.where(better, vals[rows, j], best)
+            bad = ~_nonpositive(mu[rows, j]) if dual_wanted else np.zeros(N, dtype=bool)
+            if vertex:
+                r = np.flatnonzero(better & ~check_all[midx, j])
+                bad[r] |= _outside(c[r], B[r], u[r, j[r]], tol[r])
+            doubt = np.where(better, bad, doubt)
         if not np.any(better):
             continue
-        best = np.where(better, vbest, best)
         mu_b = mu[rows, j]                                    # (N, k)
         idx_b = idx[rows, j]                                  # (N, k)
         if dc is not None:
@@ -165,7 +236,20 @@ def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
             lam_k = np.zeros((N, F))
             lam_k[rows[:, None], idx_b] = -mu_b               # lam_S = -G_SS^-1 c_S >= 0
             lam = np.where(better[:, None], lam_k, lam)
+    if doubt.any():
+        r = np.flatnonzero(doubt)
+        e = _evaluate(c[r], G[r], midx[r], ps, None if dc is None else dc[r], None if dG is None else dG[r],
+                      want_lam, None if B is None else B[r], strict=True)
+        best[r], g1[r], g2[r] = e.g, e.g1, e.g2
+        if want_lam:
+            lam[r] = e.lam
     return _Eval(best, g1, g2, lam)
+
+
+def _nonpositive(mu: np.ndarray) -> np.ndarray:
+    """mu (..., k) <= 1e-9 max |mu| entry-wise, i.e. lam_S = -mu >= 0 up to rounding. (...)"""
+    hi = mu.max(axis=-1)
+    return hi <= 1e-9 * np.maximum(hi, -mu.min(axis=-1))
 
 
 def _prepare(x: np.ndarray, P: np.ndarray, ps: PolytopeSet) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
