@@ -194,6 +194,8 @@ def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
             # an extra subset of a degenerate face counts only with lam_S >= 0
             # (its value equals the face's; its certificate must be valid)
             ok &= lam_ok | ~sign_all[midx]
+        if strict:
+            dual_ok = ok & lam_ok                             # feasible point or not
         if np.any(check_all):
             ok &= _feasible(c, G, idx, mu, tol) | ~check_all[midx]
         vals = np.where(ok, val, np.inf)
@@ -204,7 +206,7 @@ def _evaluate(c: np.ndarray, G: np.ndarray, midx: np.ndarray, ps: PolytopeSet,
             best = np.minimum(best, np.min(vals, axis=-1))
             if not dual_wanted:
                 continue
-            q = np.where(ok & lam_ok, 2 * c_mu - val, -np.inf)
+            q = np.where(dual_ok, 2 * c_mu - val, -np.inf)
             j = np.argmax(q, axis=-1)
             better = q[rows, j] > dual
             dual = np.where(better, q[rows, j], dual)
