@@ -180,3 +180,39 @@ def test_continuous_warm_start_adds_the_least_sensing_that_fits():
     assert np.allclose(f, f[0], rtol=1e-9)                      # one factor for every posterior
     assert f_star / 1.01 <= f[0] <= f_star * 1.01
     assert spend(f[0]) <= START_SHARE * delta and got.report is not None and got.report.safe
+
+
+def test_uniform_continuous_start_names_the_pair_over_its_share():
+    """Under the uniform allocation a continuous-time start can fail while the
+    surrogate's sum is well inside the budget: one pair's share is what no
+    sensing meets. The error says so, naming the pair, and the pair's own
+    surrogate with all the sensing (computed here from the public pieces)
+    is indeed above its share while the sum is not above the budget."""
+    from conftest import PAPER_MULTI_WAYPOINTS, densify
+    from belief_nlp.allocation import tail
+    from belief_nlp.errors import InfeasibleStartError
+    from belief_nlp.risk import surrogate_clearance
+    from belief_nlp.smoother.budget_start import SHARPEN_OCTAVES, budget_warm_start
+    from belief_nlp.smoother.warmstart import scaled_posteriors, warm_start
+
+    sc = bn.load_scenario("paper-multi")
+    x = densify(PAPER_MULTI_WAYPOINTS, 4)
+    path = bn.BeliefPath.from_sensing(x, sc.P0, np.zeros((len(x), 2, 2)), W=sc.W, noise="per_step")
+    K, delta = 20, 0.3
+    rb = RiskBudget(delta, "uniform", "continuous")
+    share = delta / (K * len(sc.hazards))
+    with pytest.raises(InfeasibleStartError, match="uniform allocation") as info:
+        budget_warm_start(sc, path, K, "minimal", rb)
+    err = info.value
+    assert f"{share:.3g}" in str(err) and err.obstacle in str(err)
+    base = warm_start(sc, path, K=K, chi2=rb.uniform_level(K * len(sc.hazards)), verify_start=False)
+    spend = rb.factor * tail(surrogate_clearance(sc, scaled_posteriors(sc, base.path, 2.0**-SHARPEN_OCTAVES)))
+    j = [h.name for h in sc.hazards].index(err.obstacle)
+    assert spend[err.transition - 1, j] > share >= 0
+    assert spend.sum() < delta
+    # the optimal allocation, which may shift the budget between pairs, finds a start
+    got = budget_warm_start(sc, path, K, "minimal", RiskBudget(delta, "optimal", "continuous"))
+    assert np.sum(rb.factor * tail(surrogate_clearance(sc, got.path))) <= delta
+    # a smaller budget: already the step-time start at the uniform level fails, and says so
+    with pytest.raises(InfeasibleStartError, match=r"uniform allocation every pair at level .*cannot be made clear"):
+        budget_warm_start(sc, path, K, "minimal", RiskBudget(0.05, "uniform", "continuous"))

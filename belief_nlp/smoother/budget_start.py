@@ -78,8 +78,10 @@ def budget_warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensi
         if state == "over":          # the highest rung that clears: the least any rung spends
             first_over = (state, warm, bound)
             break
+    every = (f"under the uniform allocation every pair at level {levels[-1]:.4g} ({budget.budget / n_pairs:.3g} "
+             f"each; allocation='optimal' may fit)" if uniform else f"every pair at level {levels[-1]:.4g}")
     why = (f"the best warm start's certified bound is {first_over[2]:.3g}" if first_over is not None
-           else f"every pair at level {levels[-1]:.4g}: {errors[0] if errors else 'no warm start'}")
+           else f"{every}: {errors[0] if errors else 'no warm start'}")
     err = errors[0] if errors else None
     raise InfeasibleStartError(f"no warm start meets the risk budget {budget.budget:g} ({why}; plan with "
                                f"risk={budget.budget:g} or give a larger budget)",
@@ -131,14 +133,20 @@ def _continuous(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
         try:
             warm = warm_start(scenario, path, K=K, sensing=sensing, chi2=base, verify_start=False)
             break
-        except InfeasibleStartError:
+        except InfeasibleStartError as exc:
             if i == len(levels) - 1:
-                raise
+                how = (f"under the uniform allocation every pair at level {base:.4g} ({budget.budget / n_pairs:.3g} "
+                       f"each; allocation='optimal' may fit)" if budget.allocation == "uniform"
+                       else f"every pair at level {base:.4g}")
+                raise InfeasibleStartError(f"no warm start meets the continuous-time risk budget "
+                                           f"{budget.budget:g} ({how}: {exc})", exc.transition, exc.obstacle) from exc
     spent = [float("inf")]
+    worst: list = [None]
 
     def fits(exponent: float) -> bool:
         clear = surrogate_clearance(scenario, scaled_posteriors(scenario, warm.path, 2.0**exponent))
         spent[0] = float(np.sum(budget.factor * tail(clear)))
+        worst[0] = np.unravel_index(int(np.argmin(clear)), clear.shape), float(budget.factor * tail(clear.min()))
         if budget.allocation == "uniform":
             return bool(np.all(clear >= base * (1 + 1e-3)))
         return spent[0] <= START_SHARE * budget.budget
@@ -146,10 +154,19 @@ def _continuous(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
     if fits(0.0):
         return warm
     if not fits(-SHARPEN_OCTAVES):
-        raise InfeasibleStartError(f"no warm start meets the continuous-time risk budget {budget.budget:g} (with "
-                                   f"all the sensing, the surrogate spends {spent[0]:.3g}: the means pass too close "
-                                   f"to a hazard for the noise W; give a larger budget or a path further from the "
-                                   f"hazards)")
+        (k, j), risk = worst[0]
+        hazard = scenario.hazards[int(j)].name
+        if budget.allocation == "uniform":
+            # the sum may be well inside the budget: it is one pair's share that no sensing meets
+            why = (f"under the uniform allocation each transition-hazard pair gets {budget.budget / n_pairs:.3g}, "
+                   f"and with all the sensing transition {int(k) + 1} against {hazard} spends {risk:.3g} (the sum "
+                   f"{spent[0]:.3g}); use allocation='optimal', a larger budget or a path further from {hazard}")
+        else:
+            why = (f"with all the sensing the surrogate spends {spent[0]:.3g}, transition {int(k) + 1} against "
+                   f"{hazard} the most ({risk:.3g}): the means pass too close to a hazard for the noise W; give a "
+                   f"larger budget or a path further from the hazards")
+        raise InfeasibleStartError(f"no warm start meets the continuous-time risk budget {budget.budget:g} ({why})",
+                                   int(k) + 1, hazard)
     lo, hi = -SHARPEN_OCTAVES, 0.0              # fits at lo, not at hi
     for _ in range(12):
         mid = 0.5 * (lo + hi)
