@@ -216,3 +216,27 @@ def test_uniform_continuous_start_names_the_pair_over_its_share():
     # a smaller budget: already the step-time start at the uniform level fails, and says so
     with pytest.raises(InfeasibleStartError, match=r"uniform allocation every pair at level .*cannot be made clear"):
         budget_warm_start(sc, path, K, "minimal", RiskBudget(0.05, "uniform", "continuous"))
+
+
+def test_clarabel_insufficient_progress_is_an_inaccurate_answer():
+    """A 3-D continuous-budget CCP step (boxes3d map 15, its plan's waypoints)
+    on which every Clarabel entry of the cascade stops at InsufficientProgress
+    (relative gap ~5e-5) with a point. CVXPY calls that a solver failure
+    unless asked (``accept_unknown``); the cascade then ran SCS at high
+    accuracy for 20-60 s, whose answer the exact check refused, and the run
+    ended at its time limit on the warm start. Taken as an inaccurate answer
+    it is checked like any: the step is Clarabel's, lowers the cost, and the
+    path is verified inside the budget."""
+    from belief_nlp.families import generate
+
+    sc = generate("boxes3d", 15)
+    x = np.array([[0.1, 0.1, 0.1], [0.1907, 0.1509, 0.4878], [0.4371, 0.4419, 0.4873], [0.6207, 0.7517, 0.6059],
+                  [0.8043, 0.8521, 0.8133], [0.8379, 0.8275, 0.8292]])
+    path = bn.BeliefPath.from_sensing(x, sc.P0, np.zeros((len(x), 3, 3)), W=sc.W, noise="per_step")
+    res = bn.smooth(sc, path, K=20, method="ccp", risk=BUDGET, allocation="optimal", risk_kind="continuous",
+                    max_iter=1, time_limit=30)
+    step = res.stats["steps"][0]
+    assert step["solver"].startswith("CLARABEL"), step["attempts"]
+    assert all(a["solver"] == "CLARABEL" for a in step["attempts"])
+    assert res.status == "max_iter" and res.cost < res.history[0].cost
+    assert bn.verify(sc, res.path, levels=res.risk.levels, budget=BUDGET).safe
