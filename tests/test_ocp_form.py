@@ -159,11 +159,51 @@ def test_a_variable_added_later_lands_in_its_step(small):
 
 
 def test_a_row_across_three_steps_is_refused(small):
+    """Not a sum of per-step terms: no running sum can carry it."""
     model, _ = small
     nlp = build_nlp(model, "logchol")
     d = model.data.d
-    bad = replace(nlp, g=ca.vertcat(nlp.g, nlp.z[0] - nlp.z[2 * d]), lbg=np.r_[nlp.lbg, 0.0], ubg=np.r_[nlp.ubg, 0.0])
+    bad = replace(nlp, g=ca.vertcat(nlp.g, nlp.z[0] * nlp.z[2 * d]), lbg=np.r_[nlp.lbg, 0.0], ubg=np.r_[nlp.ubg, 1.0])
     with pytest.raises(ValidationError, match="neighbours"):
         build_ocp(bad)
     with pytest.raises(ValidationError, match="neighbours"):
         build_ocp(build_nlp(model, "eliminated"))
+
+
+def test_a_row_over_every_step_becomes_a_running_sum(small):
+    """A row summing per-step terms over the whole path (as a risk budget's
+    sum_kj g(tau_kj) <= Delta does) becomes running sums r_k = r_{k-1} +
+    (step k's terms), each row of one stage and its neighbour: the source row
+    is r_K, the new rows vanish at a packed point, the Jacobian keeps
+    fatrop's block pattern, and the optimum with the row active is the
+    NLP's (IPOPT on both forms)."""
+    model, z = small
+    nlp = build_nlp(model, "logchol")
+    K, d = model.data.K, model.data.d
+    X = nlp.z[:d * K].reshape((d, K))
+    row = ca.sum1((X[0, :].T - 0.5) ** 2) / 4.0           # every step; opened through the division
+    pv = nlp.anchor(z)
+    at_start = float(ca.Function("r", [nlp.z], [row])(nlp.pack(z)))
+    ext = replace(nlp, g=ca.vertcat(nlp.g, row), lbg=np.r_[nlp.lbg, -np.inf], ubg=np.r_[nlp.ubg, 0.9 * at_start])
+    ocp = build_ocp(ext)
+    assert ocp.info["n_running_sums"] == K and ocp.z.shape[0] == sum(ocp.nx) + sum(ocp.nu)
+    g_n = ca.Function("n", [ext.z, ext.p], [ext.g])(ext.pack(z), pv).full().ravel()
+    g_o = ca.Function("o", [ocp.z, ocp.p], [ocp.g])(ocp.pack(z), pv).full().ravel()
+    np.testing.assert_allclose(ocp.source_g(g_o), g_n, rtol=1e-12, atol=1e-12)
+    assert g_n[-1] == pytest.approx(at_start, rel=1e-12)
+    np.testing.assert_allclose(np.delete(g_o, ocp.source_rows), 0.0, atol=1e-12)
+    Jac = np.array(ca.DM(ca.jacobian_sparsity(ocp.g, ocp.z), 1).full(), bool)
+    for i, ((c0, c1), (r0, r1), (p0, p1)) in enumerate(_blocks(ocp)):
+        assert not Jac[p0:p1, :c0].any() and not Jac[p0:p1, c1:].any()
+    fs, xs = [], []
+    for prob in (ext, ocp):
+        S = ca.nlpsol("s", "ipopt", {"x": prob.z, "p": prob.p, "f": prob.f, "g": prob.g}, IPOPT)
+        r = S(x0=prob.pack(z), p=pv, lbx=prob.lbz, ubx=prob.ubz, lbg=prob.lbg, ubg=prob.ubg)
+        assert S.stats()["success"]
+        fs.append(float(r["f"]))
+        xs.append(r["x"].full().ravel())
+    assert fs[1] == pytest.approx(fs[0], rel=1e-7)
+    x_o = ocp.to_source(xs[1])
+    assert float(ca.Function("r", [nlp.z], [row])(x_o)) == pytest.approx(0.9 * at_start, rel=1e-6)   # active
+    f_free = float(ca.Function("f", [nlp.z, nlp.p], [nlp.f])(nlp.pack(z), pv))
+    assert fs[0] < f_free

@@ -21,7 +21,6 @@ from typing import Any, Iterator
 
 import casadi as ca
 
-from ..errors import ValidationError
 from ..model.nlp_form import NLPProblem
 from ..model.ocp_form import OCPProblem, build_ocp
 from ..smoother.context import Outcome, SmoothingProblem
@@ -183,14 +182,6 @@ FATROP = FatropBackend()
 def run(problem: SmoothingProblem, **options: Any) -> Outcome:
     """fatrop from the problem's start; ``options`` as in :data:`METHOD`
     (the driver passes every one, defaults filled in)."""
-    if problem.model.data.continuous:
-        # T_k couples the prior information of stage k-1 into stage k's rows; not stage-wise checked
-        raise ValidationError("risk_kind", "method 'fatrop' does not take a continuous-time risk budget yet; "
-                                           "use method 'ipopt', 'auto' or 'ccp'")
-    if problem.model.data.budget is not None:
-        # the budget row sums over every stage; a stage form would carry the spent risk as a state
-        raise ValidationError("risk", "method 'fatrop' does not take an optimal risk allocation yet (its budget "
-                                      "row couples all stages); use allocation='uniform' or method 'ipopt'/'ccp'")
     return run_nlp(problem, FATROP, **options)
 
 

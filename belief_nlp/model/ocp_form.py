@@ -27,9 +27,14 @@ NLP supplies them, else the layout of :func:`.nlp_form.build_nlp` read from
 the symbols' names (x_k, L_k, M_k (k >= 2) and lam_k, column by column);
 variables outside that layout get
 the largest step of the rows and cost terms that read them (a per-pair
-variable of transition k lands in step k). Any row or term spanning more
-than two consecutive steps is refused (the "eliminated" formulation, whose
-Q_k depends on every earlier step).
+variable of transition k lands in step k).
+
+A row over the whole path whose additive terms each read one step or two
+neighbours -- a risk budget's sum_kj g(tau_kj) <= Delta -- is carried as a
+running sum: new variables r_k (step k) with rows r_k = r_{k-1} + (the
+terms of step k), and the row itself becomes r_K, with its bounds. Any other
+row or term spanning more than two consecutive steps is refused (the
+"eliminated" formulation, whose Q_k depends on every earlier step).
 """
 
 from __future__ import annotations
@@ -83,6 +88,8 @@ class OCPProblem:
     nu: list
     ng: list
     info: dict = field(default_factory=dict)
+    #: source variables -> the running sums' values (rows over every step, :func:`_running_sums`), or None
+    extra: ca.Function | None = None
     #: no Kalman box on this form (NLPProblem.has_kalman_box): the source's
     #: lifted factors sit elsewhere here, and fatrop takes no runaway stop
     has_kalman_box = False
@@ -112,8 +119,13 @@ class OCPProblem:
         return self.source.margin_values(self.to_source(zv))
 
     def pack(self, lay: Layout) -> np.ndarray:
-        """Layout -> variable values in stage order (copies equal their originals)."""
-        return self.source.pack(lay)[self.src]
+        """Layout -> variable values in stage order (copies equal their originals,
+        running sums their sums)."""
+        return self._extended(self.source.pack(lay))[self.src]
+
+    def _extended(self, zv: np.ndarray) -> np.ndarray:
+        """The source's variable values followed by the running sums at them."""
+        return zv if self.extra is None else np.concatenate([zv, np.asarray(self.extra(zv), float).ravel()])
 
     def unpack(self, zv: np.ndarray) -> Layout:
         """Variable values in stage order -> Layout (read from the originals)."""
@@ -132,7 +144,7 @@ class OCPProblem:
         """:meth:`.NLPProblem.without_sensing` in stage order; a copy stays
         free (its gap row ties it to the fixed original)."""
         z0, lb, ub = self.source.without_sensing(lay, floor, slack)
-        return z0[self.src], self._bounds(lb, -np.inf), self._bounds(ub, np.inf)
+        return self._extended(z0)[self.src], self._bounds(lb, -np.inf), self._bounds(ub, np.inf)
 
     def _bounds(self, b: np.ndarray, free: float) -> np.ndarray:
         out = np.full(self.src.size, free)
@@ -166,9 +178,10 @@ def stage_labels(nlp: NLPProblem) -> np.ndarray:
     return lab
 
 
-def additive_terms(expr: ca.SX, z: ca.SX | None = None) -> list[ca.SX]:
+def additive_terms(expr: ca.SX, z: ca.SX | None = None, divisions: bool = False) -> list[ca.SX]:
     """Scalar ``expr`` as a list of terms whose sum it is: the tree of sums,
-    differences, negations and products with a constant is opened; every
+    differences, negations and products with a constant (``divisions``: and
+    divisions by one) is opened; every
     other node is one term (with its sign and constant factor). With ``z``,
     a product with a factor free of ``z`` (a parameter such as alpha) is
     opened too, the factor kept on each term."""
@@ -192,6 +205,8 @@ def additive_terms(expr: ca.SX, z: ca.SX | None = None) -> list[ca.SX]:
             stack.append((e.dep(1), c * factor(e.dep(0))))
         elif e.is_op(ca.OP_MUL) and factor(e.dep(1)) is not None:
             stack.append((e.dep(0), c * factor(e.dep(1))))
+        elif divisions and e.is_op(ca.OP_DIV) and e.dep(1).is_constant():
+            stack.append((e.dep(0), c / float(e.dep(1))))
         elif e.is_constant() and float(e) == 0.0:
             continue
         else:
@@ -206,16 +221,51 @@ def _deps(exprs: ca.SX, z: ca.SX) -> list[np.ndarray]:
     return [row[colind[i]:colind[i + 1]] for i in range(exprs.shape[0])]
 
 
+def _running_sums(g: ca.SX, z: ca.SX, p: ca.SX, wide: list[int], K: int,
+                  stage: Callable[[np.ndarray, str], int]) -> tuple[ca.SX, ca.SX, list[ca.SX], np.ndarray, ca.SX]:
+    """Rows that read more than two steps, as running sums (the budget row
+    sum_kj g(tau_kj) <= Delta): row i = sum of additive terms, each reading
+    one step or two neighbours, becomes variables r_1..r_K with rows
+    r_k - r_{k-1} - (the terms of step k) = 0, and row i itself becomes r_K
+    with its bounds. Returns (the new variables, the rows with row i
+    replaced, the new equality rows, the new variables' steps, their values
+    as expressions of z)."""
+    new_z, new_rows, new_lab, values = [], [], [], []
+    rows = [g[i] for i in range(int(g.shape[0]))]
+    for i in wide:
+        terms = additive_terms(g[i], z, divisions=True)
+        if any(ca.depends_on(t, p) for t in terms):
+            raise ValidationError("formulation", f"row {i} reads every step and a parameter; a stage form "
+                                                 "needs neighbours only")
+        at = [max(stage(d, f"a term of row {i}"), 1) for d in _deps(ca.vertcat(*terms), z)]
+        r = ca.SX.sym(f"sum{i}", K)
+        total = ca.SX(0)
+        for k in range(1, K + 1):
+            step = sum((t for t, s in zip(terms, at) if s == k), ca.SX(0))
+            new_rows.append(r[k - 1] - (r[k - 2] if k > 1 else 0) - step)
+            total = total + step
+            values.append(total)
+        rows[i] = r[K - 1]
+        new_z.append(r)
+        new_lab.append(np.arange(1, K + 1))
+    return ca.vertcat(*new_z), ca.vertcat(*rows), new_rows, np.concatenate(new_lab), ca.vertcat(*values)
+
+
 def build_ocp(nlp: NLPProblem) -> OCPProblem:
     """``nlp`` in stage order (module doc); the same optimum, variable for variable."""
     z = nlp.z
     n = int(z.shape[0])
+    m = int(nlp.g.shape[0])
     K = int(nlp.info["K"])
     lab = stage_labels(nlp)
     terms = additive_terms(nlp.f, z)
     T = ca.vertcat(*terms) if terms else ca.SX(0, 1)
     row_deps = _deps(nlp.g, z)
     term_deps = _deps(T, z)
+
+    def _span(deps: np.ndarray) -> int:
+        known = lab[deps][lab[deps] > 0]
+        return int(known.max() - known.min()) if known.size else 0
 
     def _stage(deps: np.ndarray, what: str) -> int:
         known = lab[deps][lab[deps] > 0]
@@ -227,17 +277,35 @@ def build_ocp(nlp: NLPProblem) -> OCPProblem:
                                                  "a stage form needs neighbours only")
         return hi
 
+    # rows over the whole path (a risk budget's) become running sums below; they place nothing
+    wide = [i for i, d in enumerate(row_deps) if _span(d) > 1]
     # unlabelled variables: the largest step of what reads them
     if np.any(lab < 0):
         lab = lab.copy()
         lab_new = np.zeros(n, int)
-        for deps, what in [(d, "a row") for d in row_deps] + [(d, "a cost term") for d in term_deps]:
+        narrow = [d for i, d in enumerate(row_deps) if i not in set(wide)]
+        for deps, what in [(d, "a row") for d in narrow] + [(d, "a cost term") for d in term_deps]:
             s = _stage(deps, what)
             free = deps[lab[deps] < 0]
             lab_new[free] = np.maximum(lab_new[free], s)
         if np.any((lab < 0) & (lab_new < 1)):
             raise ValidationError("stages", "some NLP variables have no step label and nothing places them")
         lab = np.where(lab < 0, lab_new, lab)
+        wide = [i for i, d in enumerate(row_deps) if _span(d) > 1]     # a budget row reads only levels
+
+    g, g_lo, g_hi, z_lo, z_hi, extra = nlp.g, nlp.lbg, nlp.ubg, nlp.lbz, nlp.ubz, None
+    if wide:
+        r, g, sums, r_lab, values = _running_sums(nlp.g, z, nlp.p, wide, K, _stage)
+        extra = ca.Function("running_sums", [z], [values])     # their values at a source point (pack)
+        z = ca.vertcat(z, r)
+        g = ca.vertcat(g, *sums)
+        lab = np.concatenate([lab, r_lab])
+        g_lo = np.concatenate([g_lo, np.zeros(len(sums))])
+        g_hi = np.concatenate([g_hi, np.zeros(len(sums))])
+        z_lo = np.concatenate([z_lo, np.full(r.shape[0], -np.inf)])
+        z_hi = np.concatenate([z_hi, np.full(r.shape[0], np.inf)])
+        row_deps = _deps(g, z)
+    n_all = int(z.shape[0])
 
     row_stage = np.array([max(_stage(d, "a row"), 1) for d in row_deps], int)
     term_stage = np.array([max(_stage(d, "a cost term"), 1) for d in term_deps], int)
@@ -249,7 +317,7 @@ def build_ocp(nlp: NLPProblem) -> OCPProblem:
         allv = np.unique(np.concatenate(used)) if used else np.zeros(0, int)
         carried[k] = allv[lab[allv] == k - 1]
 
-    zs = [z[i] for i in range(n)]
+    zs = [z[i] for i in range(n_all)]
     vars_o, src, lbz, ubz, gs, lbg, ubg, rows_src = [], [], [], [], [], [], [], []
     nx, nu, ng = [], [], []
     f_parts = []
@@ -260,8 +328,8 @@ def build_ocp(nlp: NLPProblem) -> OCPProblem:
         own = np.flatnonzero(lab == k)
         vars_o += [copies[k][j] for j in range(c.size)] + [zs[i] for i in own]
         src += list(c) + list(own)
-        lbz += [-np.inf] * c.size + list(nlp.lbz[own])
-        ubz += [np.inf] * c.size + list(nlp.ubz[own])
+        lbz += [-np.inf] * c.size + list(z_lo[own])
+        ubz += [np.inf] * c.size + list(z_hi[own])
         nx.append(int(c.size))
         nu.append(int(own.size))
     for k in range(1, K + 1):
@@ -276,13 +344,13 @@ def build_ocp(nlp: NLPProblem) -> OCPProblem:
         rows = np.flatnonzero(row_stage == k)
         tms = np.flatnonzero(term_stage == k)
         old = ca.vertcat(*[zs[i] for i in carried[k]]) if carried[k].size else ca.SX(0, 1)
-        ex = [nlp.g[rows.tolist()] if rows.size else ca.SX(0, 1), T[tms.tolist()] if tms.size else ca.SX(0, 1)]
+        ex = [g[rows.tolist()] if rows.size else ca.SX(0, 1), T[tms.tolist()] if tms.size else ca.SX(0, 1)]
         if carried[k].size:
             ex = ca.substitute(ex, [old], [copies[k]])
         gs += [ex[0][j] for j in range(rows.size)]
-        lbg += list(nlp.lbg[rows])
-        ubg += list(nlp.ubg[rows])
-        rows_src += list(rows)
+        lbg += list(g_lo[rows])
+        ubg += list(g_hi[rows])
+        rows_src += [int(r_) if r_ < m else -1 for r_ in rows]     # running sums: no source row
         if tms.size:
             f_parts.append(ca.sum1(ex[1]))
         ng.append(int(rows.size))
@@ -295,8 +363,9 @@ def build_ocp(nlp: NLPProblem) -> OCPProblem:
     for k in range(1, K + 1):
         is_copy[pos:pos + nx[k - 1]] = True
         pos += nx[k - 1] + nu[k - 1]
-    orig = np.empty(n, int)
+    orig = np.empty(n_all, int)
     orig[src[~is_copy]] = np.flatnonzero(~is_copy)
+    orig = orig[:n]                                          # the source's variables (not the running sums)
     rows_src = np.asarray(rows_src, int)
     source_rows = np.empty(int(nlp.g.shape[0]), int)
     source_rows[rows_src[rows_src >= 0]] = np.flatnonzero(rows_src >= 0)
@@ -309,7 +378,8 @@ def build_ocp(nlp: NLPProblem) -> OCPProblem:
                           ["collision", "target"])
     # "m_offset" places the source's lifted factors, not this form's (no Kalman box here)
     info = {**{k: v for k, v in nlp.info.items() if k != "m_offset"}, "n_variables": int(z_o.shape[0]),
-            "n_constraints": int(g_o.shape[0]), "n_carried": int(sum(nx)), "stages_of_source": lab}
+            "n_constraints": int(g_o.shape[0]), "n_carried": int(sum(nx)), "stages_of_source": lab[:n],
+            "n_running_sums": n_all - n}
     return OCPProblem(nlp, z_o, nlp.p, f_o, g_o, np.asarray(lbz, float), np.asarray(ubz, float),
                       np.asarray(lbg, float), np.asarray(ubg, float), parts, margins, src, orig, source_rows,
-                      K - 1, nx, nu, ng, info)
+                      K - 1, nx, nu, ng, info, extra)
