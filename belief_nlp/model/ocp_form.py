@@ -283,7 +283,8 @@ def build_ocp(nlp: NLPProblem) -> OCPProblem:
     if np.any(lab < 0):
         lab = lab.copy()
         lab_new = np.zeros(n, int)
-        narrow = [d for i, d in enumerate(row_deps) if i not in set(wide)]
+        skip = set(wide)
+        narrow = [d for i, d in enumerate(row_deps) if i not in skip]
         for deps, what in [(d, "a row") for d in narrow] + [(d, "a cost term") for d in term_deps]:
             s = _stage(deps, what)
             free = deps[lab[deps] < 0]

@@ -78,14 +78,20 @@ def budget_warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensi
         if state == "over":          # the highest rung that clears: the least any rung spends
             first_over = (state, warm, bound)
             break
-    every = (f"under the uniform allocation every pair at level {levels[-1]:.4g} ({budget.budget / n_pairs:.3g} "
-             f"each; allocation='optimal' may fit)" if uniform else f"every pair at level {levels[-1]:.4g}")
     why = (f"the best warm start's certified bound is {first_over[2]:.3g}" if first_over is not None
-           else f"{every}: {errors[0] if errors else 'no warm start'}")
+           else f"{_every_pair(budget, levels[-1], n_pairs)}: {errors[0] if errors else 'no warm start'}")
     err = errors[0] if errors else None
     raise InfeasibleStartError(f"no warm start meets the risk budget {budget.budget:g} ({why}; plan with "
                                f"risk={budget.budget:g} or give a larger budget)",
                                getattr(err, "transition", None), getattr(err, "obstacle", None))
+
+
+def _every_pair(budget: RiskBudget, level: float, n_pairs: int) -> str:
+    """What a failed start at one level for every pair tried (error messages)."""
+    if budget.allocation == "uniform":
+        return (f"under the uniform allocation every pair at level {level:.4g} ({budget.budget / n_pairs:.3g} each; "
+                f"allocation='optimal' may fit)")
+    return f"every pair at level {level:.4g}"
 
 
 def _ladder(scenario: Scenario, budget: RiskBudget, n_pairs: int) -> list[float]:
@@ -135,11 +141,9 @@ def _continuous(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
             break
         except InfeasibleStartError as exc:
             if i == len(levels) - 1:
-                how = (f"under the uniform allocation every pair at level {base:.4g} ({budget.budget / n_pairs:.3g} "
-                       f"each; allocation='optimal' may fit)" if budget.allocation == "uniform"
-                       else f"every pair at level {base:.4g}")
-                raise InfeasibleStartError(f"no warm start meets the continuous-time risk budget "
-                                           f"{budget.budget:g} ({how}: {exc})", exc.transition, exc.obstacle) from exc
+                raise InfeasibleStartError(f"no warm start meets the continuous-time risk budget {budget.budget:g} "
+                                           f"({_every_pair(budget, base, n_pairs)}: {exc})", exc.transition,
+                                           exc.obstacle) from exc
     spent = [float("inf")]
     worst: list = [None]
 
