@@ -13,6 +13,14 @@ itself (IG-RRT*, N = 500, per-step noise, seed 0).
         --methods auto ccp fatrop sqp --budget 0.05 --out benchmarks/results/stress_budget.json
     python benchmarks/bench_stress.py --families boxes3d:20-28 --methods auto fatrop sqp ccp \\
         --alphas 0.1 1.0 --out benchmarks/results/stress_plain.json
+
+With ``--replan N`` each case is a receding loop instead: after the smooth,
+up to N ``bn.replan(..., advance=1)`` calls, each from the executed step's
+planned mean moved by ``--error`` standard deviations of its planned
+posterior (random per axis, seeded by the map). A start whose ellipse then
+touches a hazard (``ValidationError`` from ``with_options``) is recorded and
+taken as planned instead; a start no sensing can clear
+(``InfeasibleStartError``) ends the loop (docs/mpc.md).
 """
 
 from __future__ import annotations
@@ -64,6 +72,59 @@ def run_case(case: dict) -> dict:
                   "bound": None if r.risk is None else float(r.risk.bound)}
 
 
+def run_loop(case: dict) -> dict:
+    """A receding loop (module doc): how far it got, how it ended, every re-plan verified?"""
+    import numpy as np
+
+    import belief_nlp as bn
+    from belief_nlp.families import generate
+
+    rec = dict(case)
+    sc = generate(case["family"], case["map"])
+    plan = bn.plan(sc, n_nodes=500, seed=0, noise="per_step")
+    if not plan.success:
+        return rec | {"stage": "plan", "error": "no path"}
+    cur = bn.smooth(sc, plan.path, K=case["K"], method=case["method"], alpha=case["alpha"],
+                    time_limit=case["time_limit"])
+    rng = np.random.default_rng(case["map"])
+    steps, ended, not_clear = [], "full", 0
+    for _ in range(case["replan"]):
+        if cur.path.K < 3:
+            break
+        x1 = cur.path.x[1] + case["error"] * rng.normal(size=sc.dim) * np.sqrt(np.diag(cur.path.P[1]))
+        try:
+            now = sc.with_options(x0=x1, P0=cur.path.P[1])
+        except bn.ValidationError:                       # the start ellipse touches a hazard
+            not_clear += 1
+            now = sc.with_options(x0=cur.path.x[1], P0=cur.path.P[1])
+        t = time.perf_counter()
+        try:
+            nxt = bn.replan(now, cur, advance=1, method=case["method"])
+        except Exception as exc:                         # InfeasibleStartError ends a loop; anything else too
+            ended = type(exc).__name__
+            break
+        steps.append({"status": nxt.status, "verified": bool(bn.verify(now, nxt.path).safe),
+                      "wall_s": round(time.perf_counter() - t, 4)})
+        cur = nxt
+    return rec | {"replans": len(steps), "ended": ended, "start_not_clear": not_clear,
+                  "verified": all(s["verified"] for s in steps), "steps": steps}
+
+
+def summarise_loops(records: list[dict]) -> dict:
+    import statistics
+
+    counts = collections.Counter(f"{r['method']}: {r.get('ended', r.get('error'))}" for r in records)
+    walls = collections.defaultdict(list)
+    for r in records:
+        walls[r["method"]] += [s["wall_s"] for s in r.get("steps", [])]
+    done = [r for r in records if "steps" in r]
+    return {"loops": len(records), "replans": sum(r["replans"] for r in done),
+            "replans_verified": sum(s["verified"] for r in done for s in r["steps"]),
+            "replans_converged": sum(s["status"] == "converged" for r in done for s in r["steps"]),
+            "start_not_clear": sum(r["start_not_clear"] for r in done), "ended": dict(sorted(counts.items())),
+            "median_replan_wall_s": {m: statistics.median(w) for m, w in walls.items() if w}}
+
+
 def summarise(records: list[dict]) -> dict:
     counts = collections.Counter()
     flagged = []
@@ -91,11 +152,19 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--alphas", type=float, nargs="+", default=[0.1])
     ap.add_argument("--budget", type=float, default=None, help="a risk budget Delta (both allocations, both kinds)")
     ap.add_argument("--time-limit", type=float, default=120.0)
+    ap.add_argument("--replan", type=int, default=0, help="receding loops of up to N re-plans instead")
+    ap.add_argument("--error", type=float, default=0.3, help="estimation error per executed step, in std devs")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", type=Path, default=RESULTS / "stress.json")
     args = ap.parse_args(argv)
     budgets = ([{"budget": args.budget, "allocation": a, "risk_kind": k} for k in ("steps", "continuous")
                 for a in ("optimal", "uniform")] if args.budget else [{"budget": None}])
+    if args.replan:
+        cases = [{"family": fam, "map": m, "K": args.K, "method": meth, "alpha": args.alphas[0],
+                  "time_limit": args.time_limit, "replan": args.replan, "error": args.error}
+                 for spec in args.families for fam, m in _maps(spec) for meth in args.methods]
+        run_and_record(run_loop, cases, summarise_loops, args, args.out, args.workers)
+        return
     cases = [{"family": fam, "map": m, "K": args.K, "method": meth, "alpha": alpha, "time_limit": args.time_limit,
               **b} for spec in args.families for fam, m in _maps(spec) for meth in args.methods
              for alpha in args.alphas for b in budgets]
