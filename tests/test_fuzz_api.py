@@ -30,12 +30,20 @@ ARGS = ["max_iter", "tol", "solver", "alpha", "time_limit", "solver_options", "K
 KNOWN = set(ARGS) - {"unknown_option"}
 
 
+def _valid_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 0 < v <= 10_000
+
+
 @FUZZ
 @given(method=st.sampled_from(["ccp", "ipopt", "newton", 3]),
        kwargs=st.dictionaries(st.sampled_from(ARGS), weird, min_size=1, max_size=3))
 def test_smooth_arguments(method, kwargs):
-    if kwargs.get("max_iter") is None or kwargs.get("max_iter") not in range(1, 3):
-        kwargs["max_iter"] = kwargs.get("max_iter", 2)             # keep valid runs short
+    # keep valid runs short (a weird value stays, for the validation); seed 2249 drew max_iter 448 and
+    # K 152, a valid CCP run of 32 s
+    if _valid_int(kwargs.get("max_iter", 3)) and kwargs.get("max_iter", 3) > 2:
+        kwargs["max_iter"] = 2
+    if _valid_int(kwargs.get("K")) and kwargs["K"] > 20:
+        kwargs["K"] = 20
     if isinstance(kwargs.get("time_limit"), (int, float)) and kwargs["time_limit"] > 5:
         kwargs["time_limit"] = 5.0
     t0 = time.perf_counter()
