@@ -314,3 +314,27 @@ def test_a_run_on_the_active_set_step_never_imports_cvxpy(tmp_path):
     first, second = out.stdout.strip().splitlines()[-2:]
     assert first == "True True False"
     assert second == "solver"
+
+
+def test_insufficient_progress_is_an_inaccurate_answer_in_both_entries(case):
+    """Clarabel made to stop at InsufficientProgress (a large static
+    regularisation): the own-data step and the CVXPY entry of the cascade
+    both call the point an inaccurate answer (one meaning of the status;
+    the exact check and the monotone test decide on it), and the point is
+    near the step's optimum by the CVXPY objective."""
+    from belief_nlp.methods.ccp_cascade import _solve
+
+    sc, path, model, prob = case
+    z = prob.start
+    rho = initial_rho(model, z)
+    step = compiled_step(model)[0]
+    step.set_point(z, rho, rho)
+    step.problem.solve(solver="CLARABEL")
+    ref = step.problem.value
+    stall = {"static_regularization_constant": 1e-2}
+    status, zv, _, _ = conic_step_of(model).solve(z, rho, rho, np.ones(model.data.K * model.data.J, bool), stall)
+    assert status == "optimal_inaccurate"
+    assert _objective(step, zv) == pytest.approx(ref, rel=1e-2)
+    status, zv, _, _ = _solve(step, "CLARABEL", stall)
+    assert status == "optimal_inaccurate"
+    assert _objective(step, zv) == pytest.approx(ref, rel=1e-2)

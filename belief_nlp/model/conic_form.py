@@ -140,8 +140,11 @@ class ConicStep:
             if not solver_panicked(exc):
                 raise
             return f"error: solver panicked ({str(exc)[:100]})", None, time.perf_counter() - t0, 0
-        status = {"Solved": "optimal", "AlmostSolved": "optimal_inaccurate"}.get(str(sol.status), str(sol.status))
-        if status not in ("optimal", "optimal_inaccurate"):
+        # InsufficientProgress with a point is an inaccurate answer, as the CVXPY entries take it
+        # (methods.ccp_cascade.ACCEPT_UNKNOWN): the exact check and the monotone test decide
+        status = {"Solved": "optimal", "AlmostSolved": "optimal_inaccurate",
+                  "InsufficientProgress": "optimal_inaccurate"}.get(str(sol.status), str(sol.status))
+        if status not in ("optimal", "optimal_inaccurate") or not np.all(np.isfinite(sol.x)):
             return status, None, float(sol.solve_time), int(sol.iterations)
         z = zp.copy()
         z[free] = np.asarray(sol.x, float)
