@@ -17,8 +17,8 @@ from .scenario import Scenario, list_scenarios, load_scenario, save_scenario, sc
 from .allocation import RiskAllocation, RiskBudget
 from .verify import VerificationReport, verify
 from .smoother import (DEFAULT_METHOD, STATUSES, IterationRecord, Method, Option, Outcome, SmoothResult,
-                       SmoothingProblem, WarmStart, available_methods, available_solvers, get_method, reanchor, replan,
-                       smooth, warm_start)
+                       SmoothingProblem, WarmStart, available_methods, available_solvers, get_method, reanchor,
+                       relaxed_start, replan, smooth, warm_start)
 from .smoother import register as register_method
 from . import methods  # noqa: F401 - importing registers the built-in methods
 from .methods.ccp_subproblem import ccp_subproblem, ccp_subproblem_path
@@ -78,6 +78,7 @@ __all__ = [
     "plan",
     "reanchor",
     "records_to_table",
+    "relaxed_start",
     "replan",
     "save_scenario",
     "scenario_from_dict",

@@ -119,6 +119,15 @@ class Scenario:
         and ``confidence`` / ``chi2`` is the target containment level
         (default 0.9). None (default): the fixed level for everything. A
         budget that the start belief alone spends is refused.
+    start_confidence : float or None, optional
+        The level the start belief and the first transition are held to,
+        at most ``confidence`` (the file's ``start.confidence``). For a
+        re-plan from an estimate whose ellipse already touches a hazard at
+        ``confidence``: no plan can clear a start, so transition 1 is
+        certified at this level and every later one at ``confidence``
+        (:func:`belief_nlp.relaxed_start` picks it; docs/mpc.md). None
+        (default): ``confidence``. Not with a risk budget, which prices the
+        start itself.
 
     Raises
     ------
@@ -142,6 +151,7 @@ class Scenario:
     name: str = ""
     description: str = ""
     risk: float | None = None
+    start_confidence: float | None = None
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -160,6 +170,16 @@ class Scenario:
         from scipy.stats import chi2 as chi2_law
 
         return float(chi2_law.ppf(self.confidence, self.dim))
+
+    @cached_property
+    def chi2_start(self) -> float:
+        """The level of the start belief and of transition 1: the ``start_confidence``
+        quantile, or :attr:`chi2` when it is None."""
+        if self.start_confidence is None:
+            return self.chi2
+        from scipy.stats import chi2 as chi2_law
+
+        return min(float(chi2_law.ppf(self.start_confidence, self.dim)), self.chi2)
 
     @cached_property
     def walls(self) -> tuple[Polytope, ...]:
@@ -213,6 +233,8 @@ class Scenario:
             out["risk"] = float(self.risk)
         out["alpha"] = float(self.alpha)
         out["start"] = {"x": self.x0.tolist(), "P": self.P0.tolist()}
+        if self.start_confidence is not None:
+            out["start"]["confidence"] = float(self.start_confidence)
         out["noise"] = {"W": self.W.tolist(), "W_rate": self.W_rate.tolist()}
         out["domain"] = self.domain.to_dict()
         out["target"] = self.target.to_dict()
@@ -239,7 +261,7 @@ class Scenario:
 # -------------------------------------------------------------------- files
 _TOP_KEYS = ("name", "description", "confidence", "chi2", "risk", "alpha", "start", "noise", "domain", "target",
              "obstacles", "horizon", "planner")
-_TABLE_KEYS = {"start": (("x", "P"), ()), "noise": (("W",), ("W_rate",)), "horizon": ((), ("K",))}
+_TABLE_KEYS = {"start": (("x", "P"), ("confidence",)), "noise": (("W",), ("W_rate",)), "horizon": ((), ("K",))}
 
 
 def scenario_from_dict(data: Any, source: str = "scenario") -> Scenario:
@@ -319,6 +341,9 @@ def scenario_from_dict(data: Any, source: str = "scenario") -> Scenario:
         if o.dim != d:
             raise ValidationError(f"obstacles[{i}]", f"is {o.dim}-D but the domain is {d}-D")
     start, noise = tables["start"], tables["noise"]
+    if "confidence" in start and not _is_real(start["confidence"]):
+        raise ScenarioFileError("start.confidence", f"must be a number, got {type(start['confidence']).__name__}: "
+                                                    f"{start['confidence']!r}")
     return Scenario(
         domain=domain,
         target=target,
@@ -335,6 +360,7 @@ def scenario_from_dict(data: Any, source: str = "scenario") -> Scenario:
         name=data.get("name", ""),
         description=data.get("description", ""),
         risk=data.get("risk"),
+        start_confidence=start.get("confidence"),
     )
 
 

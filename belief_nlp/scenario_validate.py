@@ -151,17 +151,42 @@ def _validate(sc) -> None:
         i, face = np.unravel_index(np.argmin(slack), slack.shape)
         raise ValidationError("target", f"target is not inside the domain (vertex {sc.target.vertices[i].tolist()} "
                                         f"is {-slack[i, face]:.3g} m outside domain face {face})")
-    # start ellipse inside the domain and clear of every obstacle
+    _validate_start_confidence(sc)
+    # start ellipse inside the domain and clear of every obstacle, at its own level
     from .geometry import containment_margin, ellipse_clearance
 
-    m = containment_margin(x0, sc.P0, sc.domain.A, sc.domain.b, sc.chi2)
+    level = sc.chi2_start
+    at = "" if sc.start_confidence is None else f" at start_confidence {sc.start_confidence:g}"
+    hint = "" if sc.start_confidence is not None else (
+        " (a re-plan from such an estimate: belief_nlp.relaxed_start, docs/mpc.md)")
+    m = containment_margin(x0, sc.P0, sc.domain.A, sc.domain.b, level)
     if m < 0:
-        raise ValidationError("start", f"start confidence ellipse is not inside the domain (sticks out by {-m:.3g} m)")
+        raise ValidationError("start", f"start confidence ellipse{at} is not inside the domain (sticks out by "
+                                       f"{-m:.3g} m){hint}")
     for ob in sc.obstacles:
-        if ellipse_clearance(x0, sc.P0, ob.A, ob.b, sc.chi2) < 0:
-            raise ValidationError("start", f"start confidence ellipse is not clear of {ob.name}")
+        if ellipse_clearance(x0, sc.P0, ob.A, ob.b, level) < 0:
+            raise ValidationError("start", f"start confidence ellipse{at} is not clear of {ob.name}{hint}")
     if sc.risk is not None:
         _validate_risk(sc, x0)
+
+
+def _validate_start_confidence(sc) -> None:
+    """``start_confidence``: None, or a level in (0, 1) whose quantile is at
+    most the scenario's chi2; not with a risk budget (which prices the start)."""
+    c = sc.start_confidence
+    if c is None:
+        return
+    if not _finite(c) or not 0 < float(c) < 1:
+        raise ValidationError("start_confidence", f"must lie strictly between 0 and 1, got {c!r:.40}")
+    object.__setattr__(sc, "start_confidence", float(c))
+    if sc.risk is not None:
+        raise ValidationError("start_confidence", "cannot be combined with a risk budget ('risk'): the budget "
+                                                  "prices the start belief itself")
+    from scipy.stats import chi2 as chi2_law
+
+    if float(chi2_law.ppf(float(c), sc.dim)) > sc.chi2 * (1 + 1e-12):
+        raise ValidationError("start_confidence", f"{float(c):g} is above the scenario's own level (chi2 = "
+                                                  f"{sc.chi2:.5g}): the start may only be held to a lower one")
 
 
 def _validate_risk(sc, x0: np.ndarray) -> None:

@@ -310,9 +310,10 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
     levels : float or ndarray, shape (K, J), optional
         The collision level of every transition-hazard pair (a path smoothed
         under a risk budget has its own per pair, ``SmoothResult.risk.levels``);
-        None: the scenario's chi2, or -- for a result smoothed under a risk
-        budget -- its ``risk.levels``. The target is always judged at the
-        scenario's own chi2.
+        None: the scenario's chi2 (transition 1 at ``scenario.chi2_start``
+        when the scenario holds its start to a ``start_confidence``), or --
+        for a result smoothed under a risk budget -- its ``risk.levels``.
+        The target is always judged at the scenario's own chi2.
     budget : float, optional
         An end-to-end collision budget: the path is safe only when its
         certified bound of kind ``risk_kind`` is at most ``budget``; None
@@ -355,7 +356,7 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
                               f"path is {path.dim}-D but the scenario is {scenario.dim}-D")
     hazards = list(scenario.hazards)
     names = [h.name for h in hazards]
-    levels = _levels(levels, path.K, len(hazards), scenario.chi2)
+    levels = _levels(levels, path.K, len(hazards), scenario)
     from .allocation import RISK_KINDS, RiskBudget
 
     kind = "steps" if risk_kind is None else str(risk_kind).lower()
@@ -386,10 +387,13 @@ def verify(scenario: Scenario | str | os.PathLike, path: BeliefPath | object, n_
             return _unmeasured_report(path, names, tol, [f"numerical failure while measuring the path: {exc}"])
 
 
-def _levels(levels: object, K: int, J: int, chi2: float) -> np.ndarray:
-    """(K, J) collision levels from None (the scenario's chi2), a number or an array."""
+def _levels(levels: object, K: int, J: int, scenario: Scenario) -> np.ndarray:
+    """(K, J) collision levels from None (the scenario's: chi2, transition 1
+    at its start level), a number or an array."""
     if levels is None:
-        return np.full((K, J), float(chi2))
+        lv = np.full((K, J), float(scenario.chi2))
+        lv[0] = scenario.chi2_start
+        return lv
     try:
         lv = np.broadcast_to(np.asarray(levels, dtype=float), (K, J)).copy()
     except (ValueError, TypeError):

@@ -50,6 +50,8 @@ def run_case(case: dict) -> dict:
     sc = generate(case["family"], case["map"])
     budget = case.get("budget")
     try:
+        if case.get("confidence") is not None:          # may refuse a start not clear at that level
+            sc = sc.with_options(confidence=case["confidence"])
         plan = bn.plan(sc, n_nodes=500, seed=0, noise="per_step", **({"risk": budget} if budget else {}))
     except Exception as exc:                  # recorded; the sweep goes on
         return rec | {"stage": "plan", "error": f"{type(exc).__name__}: {exc}"[:300]}
@@ -150,6 +152,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--methods", nargs="+", default=["auto", "ccp", "fatrop", "sqp"])
     ap.add_argument("--K", type=int, default=20)
     ap.add_argument("--alphas", type=float, nargs="+", default=[0.1])
+    ap.add_argument("--confidences", type=float, nargs="+", default=[None],
+                    help="the scenarios' confidence levels (default: each family's own)")
     ap.add_argument("--budget", type=float, default=None, help="a risk budget Delta (both allocations, both kinds)")
     ap.add_argument("--time-limit", type=float, default=120.0)
     ap.add_argument("--replan", type=int, default=0, help="receding loops of up to N re-plans instead")
@@ -166,8 +170,8 @@ def main(argv: list[str] | None = None) -> None:
         run_and_record(run_loop, cases, summarise_loops, args, args.out, args.workers)
         return
     cases = [{"family": fam, "map": m, "K": args.K, "method": meth, "alpha": alpha, "time_limit": args.time_limit,
-              **b} for spec in args.families for fam, m in _maps(spec) for meth in args.methods
-             for alpha in args.alphas for b in budgets]
+              "confidence": conf, **b} for spec in args.families for fam, m in _maps(spec) for meth in args.methods
+             for alpha in args.alphas for conf in args.confidences for b in budgets]
     run_and_record(run_case, cases, summarise, args, args.out, args.workers)
 
 

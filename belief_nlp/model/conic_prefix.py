@@ -103,9 +103,9 @@ def frozen_conic(step: ConicStep, D: ProblemData, offset: int) -> FrozenConic:
     Dt, B = L.data, L.blocks
     K = Dt.K
     if not 0 < offset < K or D.K != K - offset or B.ell is not None or D.budget is not None \
-            or Dt.continuous or D.continuous:
+            or Dt.continuous or D.continuous or D.relief:
         raise ValidationError("resume", f"a conic step of {K} steps cannot be read as {D.K} steps with {offset} "
-                                        f"frozen (plain steps only)")
+                                        f"frozen (plain steps only, the start at the scenario's own level)")
     P_inv = np.linalg.inv(D.P0)
     P_inv = 0.5 * (P_inv + P_inv.T)
     cols = np.zeros(B.n, bool)

@@ -15,6 +15,7 @@ from functools import cached_property
 
 import numpy as np
 
+from ..errors import ValidationError
 from ..scenario import Scenario
 
 __all__ = ["ProblemData", "Layout", "sym", "psd_part", "surrogate_information"]
@@ -41,10 +42,27 @@ class ProblemData:
     chi2_target: float = float("nan")   # containment level (the scenario's; NaN: chi2)
     budget: float | None = None         # end-to-end risk budget: per-pair levels are variables
     continuous: bool = False            # levels asked under Sigma_k at both ends (risk.continuous_surrogate)
+    chi2_start: float = float("nan")    # level of transition 1's start end (scenario.chi2_start; NaN: chi2)
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.chi2_target):
             object.__setattr__(self, "chi2_target", float(self.chi2))
+        if not np.isfinite(self.chi2_start):
+            object.__setattr__(self, "chi2_start", float(self.chi2))
+
+    @property
+    def relief(self) -> float:
+        """chi2 - chi2_start >= 0: how much lower transition 1's start end is
+        held than every other row (a start datum, like x0: a parameter of
+        every form, not part of the cache key)."""
+        return max(float(self.chi2) - float(self.chi2_start), 0.0)
+
+    def collision_levels(self) -> np.ndarray:
+        """(K, 1) level of each transition as the checks judge it: chi2, and
+        chi2_start for transition 1 (broadcasts against (K, J))."""
+        lv = np.full((self.K, 1), float(self.chi2))
+        lv[0] = min(float(self.chi2_start), float(self.chi2))
+        return lv
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, K: int, alpha: float | None = None, chi2: float | None = None,
@@ -55,6 +73,10 @@ class ProblemData:
         (:mod:`belief_nlp.allocation`; ``chi2`` is then the warm start's level);
         ``continuous``: each pair's level holds at both ends of its transition
         under Sigma_k = P_prior_{k-1} + W (the continuous-time surrogate)."""
+        relaxed = getattr(scenario, "start_confidence", None) is not None
+        if relaxed and (budget is not None or continuous or chi2 is not None):
+            raise ValidationError("start_confidence", "a start held to its own level cannot be combined with a "
+                                                      "risk budget or another collision level")
         W = np.asarray(scenario.W, float)
         sigma = float(np.sqrt(np.max(np.linalg.eigvalsh(W))))
         hz = scenario.hazards
@@ -75,7 +97,7 @@ class ProblemData:
             A=A, b=b, face_mask=mask, hazard_names=tuple(h.name for h in hz),
             At=scenario.target.A.copy(), bt=scenario.target.b / sigma,
             chi2_target=float(scenario.chi2), budget=None if budget is None else float(budget),
-            continuous=bool(continuous),
+            continuous=bool(continuous), chi2_start=float(scenario.chi2_start) if relaxed else float("nan"),
         )
 
     @property

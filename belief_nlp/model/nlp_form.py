@@ -256,7 +256,7 @@ def _symbolic_graph(model: BeliefModel, formulation: str, margin: float, regular
     W = ca.DM(D.W)
     # the start belief is a parameter (start_values), not a constant: a re-plan
     # from a new belief reuses the graph, its derivatives and the solver
-    x0, P0, Q1, logdet_q1 = _start_symbols(d)
+    x0, P0, Q1, logdet_q1, relief = _start_symbols(d)
     xs = [x0] + [X[:, k] for k in range(K)]
 
     Q: list = [None, Q1]
@@ -311,16 +311,18 @@ def _symbolic_graph(model: BeliefModel, formulation: str, margin: float, regular
                 g_col.append(model.f_margin_inv(xs[k], T[k], lam, A, b) + shift)
                 continue
             if k == 1:
-                g_col.append(model.f_margin_cov(xs[0], P0, lam, A, b) + shift)
-            else:
-                g_col.append(model.f_margin_inv(xs[k - 1], Y[k - 1], lam, A, b) + shift)
+                # transition 1 at the start's own level chi2 - relief (start_confidence): both ends
+                g_col.append(model.f_margin_cov(xs[0], P0, lam, A, b) + shift + relief)
+                g_col.append(model.f_margin_inv(xs[1], Q[1], lam, A, b) + shift + relief)
+                continue
+            g_col.append(model.f_margin_inv(xs[k - 1], Y[k - 1], lam, A, b) + shift)
             g_col.append(model.f_margin_inv(xs[k], Q[k], lam, A, b) + shift)
     g_tgt = [model.f_target(xs[K], Y[K], ca.DM(D.At[n]), D.bt[n]) for n in range(D.At.shape[0])]
 
     Lam0 = ca.SX.sym("lam0", n_lam, K)
     alpha = ca.SX.sym("alpha")
     reg = 0.5 * regularisation * ca.sumsqr(Lam - Lam0)
-    p = ca.vertcat(ca.vec(Lam0), x0, ca.vec(P0), ca.vec(Q1), logdet_q1, alpha, switch)
+    p = ca.vertcat(ca.vec(Lam0), x0, ca.vec(P0), ca.vec(Q1), logdet_q1, relief, alpha, switch)
 
     z = ca.veccat(X, Sv, Mv, Lam, Tau)
     g_col_v = ca.vertcat(*g_col)
@@ -340,18 +342,20 @@ def _symbolic_graph(model: BeliefModel, formulation: str, margin: float, regular
             "counts": (n_col, n_tgt, n_kal, n_psd, len(g_bud))}
 
 
-def _start_symbols(d: int) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX]:
-    """x0, P0, Q1 = (P0 + W)^-1 and log det Q1 as symbols: the parameters
-    :func:`start_values` gives values."""
-    return (ca.SX.sym("x0", d), ca.SX.sym("P0", d, d), ca.SX.sym("Q1", d, d), ca.SX.sym("logdet_q1"))
+def _start_symbols(d: int) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX, ca.SX]:
+    """x0, P0, Q1 = (P0 + W)^-1, log det Q1 and the start's relief (chi2 -
+    chi2_start) as symbols: the parameters :func:`start_values` gives values."""
+    return (ca.SX.sym("x0", d), ca.SX.sym("P0", d, d), ca.SX.sym("Q1", d, d), ca.SX.sym("logdet_q1"),
+            ca.SX.sym("relief"))
 
 
 def start_values(D: ProblemData) -> np.ndarray:
     """The start belief of ``D`` as the NLP's parameters (x0, P0, Q1, log det
-    Q1; matrices column-major as ``ca.vec``). Q1 and its log-determinant are
-    computed here in numpy, as the constants they replaced were."""
+    Q1, relief; matrices column-major as ``ca.vec``). Q1 and its
+    log-determinant are computed here in numpy, as the constants they
+    replaced were."""
     return np.concatenate([D.x0, D.P0.ravel(order="F"), D.Q1.ravel(order="F"),
-                           [float(np.linalg.slogdet(D.Q1)[1])]])
+                           [float(np.linalg.slogdet(D.Q1)[1]), D.relief]])
 
 
 def build_nlp(model: BeliefModel, formulation: str = "cholesky", margin: float = 1e-6,

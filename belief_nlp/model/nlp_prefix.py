@@ -75,9 +75,10 @@ def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
     K, d, tri, floor = info["K"], info["d"], info["tri"], info["floor"]
     n = K - offset
     if nlp.formulation not in ("cholesky", "logchol") or not 0 < offset < K or D.K != n \
-            or info["n_budget"] or D.budget is not None or D.continuous:
+            or info["n_budget"] or D.budget is not None or D.continuous or D.relief:
         raise ValidationError("resume", f"a {nlp.formulation!r} NLP of {K} steps cannot be read as {D.K} steps "
-                                        f"with {offset} frozen (plain 'cholesky' / 'logchol' NLPs only)")
+                                        f"with {offset} frozen (plain 'cholesky' / 'logchol' NLPs only, the start at the "
+                                        f"scenario's own level)")
     t = len(tri)
     P_inv = np.linalg.inv(D.P0)
     L_pre = floor * np.eye(d) if nlp.formulation == "logchol" else np.zeros((d, d))
@@ -86,7 +87,7 @@ def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
     if w[0] <= 1e-9 * w[-1]:
         raise ValidationError("resume", "the start covariance is too large to freeze a floored prefix at it")
     start = np.concatenate([D.x0, D.P0.ravel(order="F"), Q_pre.ravel(order="F"),
-                            [float(np.linalg.slogdet(Q_pre)[1])]])
+                            [float(np.linalg.slogdet(Q_pre)[1]), 0.0]])    # (no relief: refused above)
     # the information of the frozen steps (the model's term at Y_k = P0^-1, Q_k = Q_pre): a constant
     info_pre = offset * float(model.f_step(D.x0, D.x0, P_inv, Q_pre)[1])
 
@@ -159,7 +160,7 @@ class _Frozen(NLPProblem):
 
     source: NLPProblem | None = None
     offset: int = 0
-    start: np.ndarray | None = None                       # the start block of p (x0, P0, Q_1, log det Q_1)
+    start: np.ndarray | None = None                       # the start block of p (x0, P0, Q_1, log det Q_1, relief)
     extend: Callable[[Layout], Layout] | None = None      # a shorter point -> the longer NLP's
     fixed: tuple[np.ndarray, np.ndarray] | None = None    # the frozen variables' indices and values
     source_g: Callable[[np.ndarray], np.ndarray] | None = None

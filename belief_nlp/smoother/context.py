@@ -52,7 +52,8 @@ class Check:
     margin : the proof -- min over transitions and hazards of the point's own
         Theorem-1 certificate values minus chi2 (closed form, both ends; a
         rigorous lower bound on the continuous-time squared Mahalanobis
-        clearance minus chi2).
+        clearance minus chi2; transition 1's minus the start's own level
+        chi2_start, ``Scenario.start_confidence``).
     upper : the exact 1-D minimisation's value minus chi2 (an upper bound,
         attained at some s); margin <= upper up to rounding. Not part of the
         proof: computed when first read (``upper_of``), NaN if it cannot be.
@@ -261,14 +262,19 @@ class SmoothingProblem:
                 z = z.copy()
                 z.lam = np.maximum(z.lam, 0.0)
             segments = self.model.segments(z)
+            levels = D.collision_levels()             # chi2; transition 1 at the start's own level
             start, end = self.model.transition_margins(z)
+            start[0] += D.relief                      # both ends held to chi2_start (the model's rows)
+            end[0] += D.relief
             out = z
             bad = ~(np.minimum(start, end) >= accept)
             if np.any(bad):
                 out = z.copy()
-                lam = segment_certificates(*segments, self.hazards_scaled, D.chi2)
+                lam = segment_certificates(*segments, self.hazards_scaled, levels if D.relief else D.chi2)
                 out.lam = np.where(bad[..., None], lam, z.lam)
                 start, end = self.model.transition_margins(out)
+                start[0] += D.relief
+                end[0] += D.relief
             lower = float(np.min(np.minimum(start, end)))
             target = float(np.min(self.model.target_margins(out)))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
@@ -276,7 +282,7 @@ class SmoothingProblem:
         hazards, seg = self.hazards_scaled, tuple(np.array(a) for a in segments)   # (views of z's means: copied)
 
         def upper() -> float:
-            return float(np.min(transition_minimiser(*seg, hazards).dist2) - D.chi2)
+            return float(np.min(transition_minimiser(*seg, hazards).dist2 - levels))
         return Check(out, lower if np.isfinite(lower) else float("nan"), target, upper, accept,
                      self.policy.target)
 

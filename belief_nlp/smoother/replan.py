@@ -23,16 +23,111 @@ from typing import Any
 
 import numpy as np
 
+from numpy.typing import ArrayLike
+
 from ..errors import ValidationError
 from ..methods import nlp_resume
 from ..path import BeliefPath
+from ..polytope import _as_finite_array
 from ..scenario import Scenario
+from ..scenario_validate import _covariance, _is_real
 from .driver import smooth
 from .registry import DEFAULT_METHOD, Method, get_method
 from .result import SmoothResult
-from .warmstart import WarmStart
+from .warmstart import _START_MARGIN, WarmStart
 
-__all__ = ["replan", "reanchor"]
+__all__ = ["replan", "reanchor", "relaxed_start"]
+
+#: relaxed_start's default: the start held to 98 % of its own squared clearance
+RELAXED_START_MARGIN = 0.02
+
+
+def relaxed_start(scenario: Scenario, x0: ArrayLike, P0: ArrayLike,
+                  previous: SmoothResult | BeliefPath | WarmStart | None = None, advance: int = 0,
+                  margin: float = RELAXED_START_MARGIN) -> Scenario:
+    """``scenario`` from the start belief (x0, P0), its first transition held
+    to a lower level when the scenario's own cannot be met from there.
+
+    In a control loop the estimate moves by its error. Moved toward a
+    hazard, its confidence ellipse may overlap it, or the step the last plan
+    takes next may pass closer than the scenario's level allows: nothing --
+    no plan, no sensing -- clears a first transition that starts there
+    (Theorem 1 includes s = 0, and the end's prior P0 + W is data too).
+    Such a start gets ``start_confidence`` = the level of (1 - margin) times
+    d2, the smallest squared Mahalanobis clearance of the start ellipse and,
+    with ``previous``, of the re-anchored first transition (to the mean
+    :func:`reanchor` keeps). Transition 1 is certified at that level, every
+    later one at the scenario's, so the plan is back at the nominal level
+    after one step (docs/mpc.md). A start the scenario's level can be met
+    from is left as it is.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The problem (without a risk budget, which prices the start itself).
+    x0, P0 : array_like
+        The start mean (d,) and covariance (d, d), as ``Scenario.x0`` / ``P0``.
+    previous : SmoothResult, WarmStart or BeliefPath, optional
+        The last plan, as :func:`replan` will be given it; None: the start
+        ellipse alone decides.
+    advance : int, optional
+        Steps executed since ``previous``, as for :func:`replan`.
+    margin : float, optional
+        0 < margin < 1 (default 0.02): the room left between the level and
+        the clearance, for the optimiser to move in.
+
+    Returns
+    -------
+    Scenario
+        ``scenario.with_options(x0=x0, P0=P0, start_confidence=...)``, None
+        when the scenario's own level can be met.
+
+    Raises
+    ------
+    ValidationError
+        Bad ``margin``, x0, P0, ``previous`` or ``advance``, or a start whose
+        mean (or first step) is on or inside a hazard: no level clears it.
+    """
+    from scipy.stats import chi2 as chi2_law
+
+    from ..geometry import PolytopeSet, squared_mahalanobis_distance, transition_minimiser
+
+    if not _is_real(margin) or not 0 < float(margin) < 1:
+        raise ValidationError("margin", f"must lie strictly between 0 and 1, got {margin!r:.40}")
+    x0 = _as_finite_array(x0, "x0", 1)
+    if x0.size != scenario.dim:
+        raise ValidationError("x0", f"must have {scenario.dim} entries, got {x0.size}")
+    P0 = _covariance(P0, scenario.dim, "P0", allow_singular=True)
+    hazards = PolytopeSet.cached(scenario.hazards)
+    d2 = squared_mahalanobis_distance(x0[None], P0[None], hazards)[0]
+    what = "start mean"
+    if previous is not None:
+        nxt = _path_of(previous, scenario, advance).x[advance + 1]
+        d2t = transition_minimiser(x0[None], P0[None], nxt[None], scenario.W, hazards).dist2[0]
+        if np.min(d2t) < np.min(d2):
+            d2, what = d2t, "first step"
+    j = int(np.argmin(d2))
+    if d2[j] >= scenario.chi2 * (1 + _START_MARGIN):     # what the warm start needs at the scenario's level
+        return scenario.with_options(x0=x0, P0=P0, start_confidence=None)
+    if not d2[j] > 0:
+        raise ValidationError("x0", f"the {what} is on or inside {scenario.hazards[j].name}: no level clears it")
+    level = (1 - float(margin)) * float(d2[j])
+    return scenario.with_options(x0=x0, P0=P0, start_confidence=float(chi2_law.cdf(level, scenario.dim)))
+
+
+def _path_of(previous: SmoothResult | BeliefPath | WarmStart, scenario: Scenario, advance: int) -> BeliefPath:
+    """``previous``'s path, checked as :func:`reanchor` checks it."""
+    path = previous.path if isinstance(previous, (SmoothResult, WarmStart)) else previous
+    if not isinstance(path, BeliefPath):
+        raise ValidationError("previous", f"must be a SmoothResult, WarmStart or BeliefPath, "
+                                          f"got {type(previous).__name__}")
+    if path.dim != scenario.dim:
+        raise ValidationError("previous", f"its path has dimension {path.dim}, the scenario {scenario.dim}")
+    if isinstance(advance, (bool, np.bool_)) or not isinstance(advance, (int, np.integer)) \
+            or not 0 <= advance < path.K:
+        raise ValidationError("advance", f"must be an integer in [0, {path.K - 1}] (the previous path has "
+                                         f"{path.K} steps), got {advance!r}")
+    return path
 
 
 def reanchor(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, advance: int = 0) -> BeliefPath:
@@ -64,16 +159,7 @@ def reanchor(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart
     ValidationError
         Bad ``previous`` or ``advance``.
     """
-    path = previous.path if isinstance(previous, (SmoothResult, WarmStart)) else previous
-    if not isinstance(path, BeliefPath):
-        raise ValidationError("previous", f"must be a SmoothResult, WarmStart or BeliefPath, "
-                                          f"got {type(previous).__name__}")
-    if path.dim != scenario.dim:
-        raise ValidationError("previous", f"its path has dimension {path.dim}, the scenario {scenario.dim}")
-    if isinstance(advance, (bool, np.bool_)) or not isinstance(advance, (int, np.integer)) \
-            or not 0 <= advance < path.K:
-        raise ValidationError("advance", f"must be an integer in [0, {path.K - 1}] (the previous path has "
-                                         f"{path.K} steps), got {advance!r}")
+    path = _path_of(previous, scenario, advance)
     x = np.vstack([np.asarray(scenario.x0, float)[None], path.x[advance + 1:]])
     S = np.asarray(path.S, float)[advance + 1:]
     return BeliefPath.from_sensing(x, scenario.P0, S, W=scenario.W)
@@ -126,7 +212,10 @@ def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, 
             raise ValidationError(name, "replan keeps the previous path's steps (minus advance) and its sensing; "
                                         "smooth reanchor(...) yourself to change them")
     # after executed steps the state's graph is read with them frozen (nlp_resume.advanced)
-    resume = nlp_resume.advanced(previous.resume, advance) if isinstance(previous, SmoothResult) else None
+    # (not from a start held to its own level: the frozen prefix would hold the
+    # shorter problem's first transition at the scenario's level)
+    resume = nlp_resume.advanced(previous.resume, advance) \
+        if isinstance(previous, SmoothResult) and scenario.start_confidence is None else None
     # the NLP's first stage starts from the last answer's variables and multipliers, CCP
     # from the conic step of its graph (the methods with the option "resume", when
     # their check takes this state: ipopt and auto IPOPT's, ccp any offset)

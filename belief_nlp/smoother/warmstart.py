@@ -286,7 +286,10 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
     chi2 = scenario.chi2                                     # the target's level
     chi2_c = chi2 if chi2_collision is None else float(chi2_collision)
     hazards = PolytopeSet.cached(scenario.hazards)
-    thr = chi2_c * (1 + _START_MARGIN)
+    # each transition's level: chi2_c, transition 1 at the start's own (start_confidence)
+    levels = np.full((K_, 1), chi2_c)
+    levels[0] = min(chi2_c, scenario.chi2_start)
+    thr_k = levels * (1 + _START_MARGIN)
     W = scenario.W
     P = np.empty((K_ + 1, scenario.dim, scenario.dim))
     P[0] = scenario.P0
@@ -303,8 +306,13 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
         # runs from the first transition that is not clear
         for i in range(k, K_ + 1):
             step(i)
-        tm = transition_minimiser(x[k - 1:-1], P[k - 1:-1], x[k:], W, hazards, threshold=thr)
-        not_clear = np.flatnonzero(np.any(tm.dist2 < thr, axis=1))
+        thr = thr_k[k - 1:]
+        dist2 = transition_minimiser(x[k - 1:-1], P[k - 1:-1], x[k:], W, hazards, threshold=float(thr[-1, 0])).dist2
+        if k == 1 and thr[0, 0] != thr[-1, 0]:
+            # a value is exact only on its own side of the threshold it was decided
+            # against: transition 1 at its start level, by a call of its own
+            dist2[0] = transition_minimiser(x[:1], P[:1], x[1:2], W, hazards, threshold=float(thr[0, 0])).dist2[0]
+        not_clear = np.flatnonzero(np.any(dist2 < thr, axis=1))
         if not_clear.size == 0:
             break
         k += int(not_clear[0])
@@ -314,6 +322,7 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
         # one, or the first at which a halving is refused, decides (one call
         # instead of one per halving: most transitions need one to three)
         rows = _HALVING_BATCH
+        thr = float(thr_k[k - 1, 0])
         while True:
             # P / 2^i: scaling by a power of two is exact, so the same bits as halving i times
             cand = P[k - 1][None] * (0.5 ** np.arange(rows))[:, None, None]
@@ -360,8 +369,8 @@ def _warm_start(scenario: Scenario, path: BeliefPath, K: int | None, sensing: st
     S = (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
     ws_path = BeliefPath.from_sensing(x, scenario.P0, S, W=W, noise="per_step",
                                       meta={**path.meta, "warm_start_from": path.meta.get("source", "path")})
-    lam = certificates(scenario, ws_path, hazards, chi2=chi2_c)
-    report = verify(scenario, ws_path, levels=chi2_c) if check else None
+    lam = certificates(scenario, ws_path, hazards, chi2=levels)
+    report = verify(scenario, ws_path, levels=np.broadcast_to(levels, (K_, len(hazards)))) if check else None
     if report is not None and not report.safe:
         raise InfeasibleStartError(f"warm start failed verification: {report.summary()}")
     return WarmStart(ws_path, lam, report, halvings)
