@@ -20,7 +20,9 @@ planned mean moved by ``--error`` standard deviations of its planned
 posterior (random per axis, seeded by the map). A start whose ellipse then
 touches a hazard (``ValidationError`` from ``with_options``) is recorded and
 taken as planned instead; a start no sensing can clear
-(``InfeasibleStartError``) ends the loop (docs/mpc.md).
+(``InfeasibleStartError``) ends the loop (docs/mpc.md). With ``--relax`` each
+start comes from ``bn.relaxed_start`` instead: its first transition held to a
+level it can meet.
 """
 
 from __future__ import annotations
@@ -89,13 +91,17 @@ def run_loop(case: dict) -> dict:
     cur = bn.smooth(sc, plan.path, K=case["K"], method=case["method"], alpha=case["alpha"],
                     time_limit=case["time_limit"])
     rng = np.random.default_rng(case["map"])
-    steps, ended, not_clear = [], "full", 0
+    steps, ended, not_clear, relaxed = [], "full", 0, 0
     for _ in range(case["replan"]):
         if cur.path.K < 3:
             break
         x1 = cur.path.x[1] + case["error"] * rng.normal(size=sc.dim) * np.sqrt(np.diag(cur.path.P[1]))
         try:
-            now = sc.with_options(x0=x1, P0=cur.path.P[1])
+            if case.get("relax"):                        # the first transition at a level it can meet
+                now = bn.relaxed_start(sc, x1, cur.path.P[1], previous=cur, advance=1)
+                relaxed += now.start_confidence is not None
+            else:
+                now = sc.with_options(x0=x1, P0=cur.path.P[1])
         except bn.ValidationError:                       # the start ellipse touches a hazard
             not_clear += 1
             now = sc.with_options(x0=cur.path.x[1], P0=cur.path.P[1])
@@ -106,9 +112,9 @@ def run_loop(case: dict) -> dict:
             ended = type(exc).__name__
             break
         steps.append({"status": nxt.status, "verified": bool(bn.verify(now, nxt.path).safe),
-                      "wall_s": round(time.perf_counter() - t, 4)})
+                      "wall_s": round(time.perf_counter() - t, 4), "start_confidence": now.start_confidence})
         cur = nxt
-    return rec | {"replans": len(steps), "ended": ended, "start_not_clear": not_clear,
+    return rec | {"replans": len(steps), "ended": ended, "start_not_clear": not_clear, "relaxed": relaxed,
                   "verified": all(s["verified"] for s in steps), "steps": steps}
 
 
@@ -123,7 +129,8 @@ def summarise_loops(records: list[dict]) -> dict:
     return {"loops": len(records), "replans": sum(r["replans"] for r in done),
             "replans_verified": sum(s["verified"] for r in done for s in r["steps"]),
             "replans_converged": sum(s["status"] == "converged" for r in done for s in r["steps"]),
-            "start_not_clear": sum(r["start_not_clear"] for r in done), "ended": dict(sorted(counts.items())),
+            "start_not_clear": sum(r["start_not_clear"] for r in done),
+            "relaxed_starts": sum(r.get("relaxed", 0) for r in done), "ended": dict(sorted(counts.items())),
             "median_replan_wall_s": {m: statistics.median(w) for m, w in walls.items() if w}}
 
 
@@ -158,6 +165,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--time-limit", type=float, default=120.0)
     ap.add_argument("--replan", type=int, default=0, help="receding loops of up to N re-plans instead")
     ap.add_argument("--error", type=float, default=0.3, help="estimation error per executed step, in std devs")
+    ap.add_argument("--relax", action="store_true",
+                    help="re-plan from bn.relaxed_start (transition 1 at a level it can meet) in the loops")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", type=Path, default=RESULTS / "stress.json")
     args = ap.parse_args(argv)
@@ -165,7 +174,7 @@ def main(argv: list[str] | None = None) -> None:
                 for a in ("optimal", "uniform")] if args.budget else [{"budget": None}])
     if args.replan:
         cases = [{"family": fam, "map": m, "K": args.K, "method": meth, "alpha": args.alphas[0],
-                  "time_limit": args.time_limit, "replan": args.replan, "error": args.error}
+                  "time_limit": args.time_limit, "replan": args.replan, "error": args.error, "relax": args.relax}
                  for spec in args.families for fam, m in _maps(spec) for meth in args.methods]
         run_and_record(run_loop, cases, summarise_loops, args, args.out, args.workers)
         return

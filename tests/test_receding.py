@@ -40,15 +40,21 @@ def _moved(sc, previous, step: int, rng) -> bn.Scenario:
     return sc.with_options(x0=previous.path.x[step] + 5e-4 * rng.uniform(-1, 1, 2), P0=0.7 * previous.path.P[step])
 
 
-@pytest.mark.parametrize("formulation, offset", [("cholesky", 1), ("logchol", 1), ("logchol", 3)])
-def test_the_frozen_nlp_is_the_shorter_problem(plan10, formulation, offset):
+@pytest.mark.parametrize("formulation, offset, relaxed", [("cholesky", 1, False), ("logchol", 1, False),
+                                                           ("logchol", 3, False), ("cholesky", 2, True)])
+def test_the_frozen_nlp_is_the_shorter_problem(plan10, formulation, offset, relaxed):
     """At perturbed points of the shorter problem, the frozen K-step NLP has
-    its margins, cost parts and rows (the extra Kalman block holds the
-    shorter problem's fixed Q_1: 0 at Kalman-consistent points), and its
-    objective differs by one constant (the frozen steps' information)."""
+    its margins, cost parts and rows against their bounds (the extra Kalman
+    block holds the shorter problem's fixed Q_1: 0 at Kalman-consistent
+    points), and its objective differs by one constant (the frozen steps'
+    information). Also with the start held to its own level (``relaxed``:
+    the shorter NLP adds the relief to its transition 1's rows, the frozen
+    one takes it off their bounds)."""
     sc, previous = plan10
     K = previous.path.K
     moved = _moved(sc, previous, offset, np.random.default_rng(offset))
+    if relaxed:
+        moved = moved.with_options(start_confidence=0.7)
     long_model, short_model = BeliefModel(sc, K, 1.0), BeliefModel(moved, K - offset, 1.0)
     view = frozen(build_nlp(long_model, formulation, floor=1e-3), short_model, offset)
     short = build_nlp(short_model, formulation, floor=1e-3)
@@ -71,7 +77,8 @@ def test_the_frozen_nlp_is_the_shorter_problem(plan10, formulation, offset):
         gv = view.source_g(np.asarray(ca.Function("g", [view.z, view.p], [view.g])(zv, pv)).ravel())
         gs = np.asarray(ca.Function("g", [short.z, short.p], [short.g])(zs, ps)).ravel()
         n_rows = short.n_collision + short.info["n_target"]
-        np.testing.assert_allclose(gv[:n_rows], gs[:n_rows], rtol=1e-7, atol=1e-7)
+        lbv = view.source_g(view.lbg)
+        np.testing.assert_allclose(gv[:n_rows] - lbv[:n_rows], gs[:n_rows] - short.lbg[:n_rows], rtol=1e-7, atol=1e-7)
         t = len(short.info["tri"])
         np.testing.assert_allclose(gv[n_rows:n_rows + t], 0.0, atol=1e-9)       # Q_{offset+1} = (P0 + W)^-1
         np.testing.assert_allclose(gv[n_rows + t:], gs[n_rows:], rtol=1e-7, atol=1e-9)

@@ -130,8 +130,24 @@ def test_the_relief_moves_exactly_transition_1s_rows_and_not_the_cache_key(case)
     # the model's own check reads the same rows: the warm start is proven at the relieved level
     start, end = model.transition_margins(point)
     np.testing.assert_allclose(np.ravel([start[0], end[0]], order="F") + D.relief, relaxed[:2 * J], atol=1e-8)
-    with pytest.raises(bn.ValidationError, match="own level"):              # no frozen prefix holds it
-        frozen(build_nlp(BeliefModel(sc, 20, 0.1)), model, 1)
+    # the frozen prefix (a resumed re-plan) holds the same rows by their bounds
+    view = frozen(build_nlp(BeliefModel(sc, 20, 0.1)), model, 1)
+    shift = view.source_g(view.lbg)[:2 * J] - nlp.lbg[:2 * J]
+    np.testing.assert_allclose(shift, -D.relief, rtol=0, atol=1e-12)
+
+
+def test_a_resumed_relaxed_replan_is_the_built_horizons_answer(case):
+    """ipopt resumed on the last answer's graph (transition 1's bounds
+    relieved) and ipopt on the shorter horizon built for the relaxed start
+    (a BeliefPath carries no resume state) reach the same optimum."""
+    sc, res, x, P, _ = case
+    now = bn.relaxed_start(sc, x, P, previous=res, advance=1)
+    resumed = bn.replan(now, res, advance=1, method="ipopt")
+    built = bn.replan(now, res.path, advance=1, method="ipopt")
+    assert resumed.stats["resumed"] == "yes" and built.stats["resumed"] == "no"
+    assert resumed.success and built.success
+    assert resumed.cost == pytest.approx(built.cost, rel=1e-6)
+    assert bn.verify(now, resumed.path).safe and bn.verify(now, built.path).safe
 
 
 @pytest.mark.parametrize("changes, field, text", [

@@ -18,7 +18,9 @@ frozen at the new start belief (x0, P0), their rows switched off:
   (Theorem 1 at x_offset under Y_offset^-1 = P0) is the shorter problem's
   first start row;
 - the collision rows of transitions 1 .. offset and the Kalman rows of
-  steps 2 .. offset bounded by -inf .. inf (IPOPT keeps such a row free), the
+  steps 2 .. offset bounded by -inf .. inf (IPOPT keeps such a row free); the
+  rows of transition offset + 1 bounded lower by the shorter problem's start
+  relief (``Scenario.start_confidence``: what its own NLP adds to them); the
   frozen variables fixed by equal bounds (IPOPT's ``fixed_variable_treatment``
   removes them); the target rows stay: the goal is still reached at step K.
 
@@ -75,10 +77,9 @@ def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
     K, d, tri, floor = info["K"], info["d"], info["tri"], info["floor"]
     n = K - offset
     if nlp.formulation not in ("cholesky", "logchol") or not 0 < offset < K or D.K != n \
-            or info["n_budget"] or D.budget is not None or D.continuous or D.relief:
+            or info["n_budget"] or D.budget is not None or D.continuous:
         raise ValidationError("resume", f"a {nlp.formulation!r} NLP of {K} steps cannot be read as {D.K} steps "
-                                        f"with {offset} frozen (plain 'cholesky' / 'logchol' NLPs only, the start at the "
-                                        f"scenario's own level)")
+                                        f"with {offset} frozen (plain 'cholesky' / 'logchol' NLPs only)")
     t = len(tri)
     P_inv = np.linalg.inv(D.P0)
     L_pre = floor * np.eye(d) if nlp.formulation == "logchol" else np.zeros((d, d))
@@ -87,7 +88,7 @@ def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
     if w[0] <= 1e-9 * w[-1]:
         raise ValidationError("resume", "the start covariance is too large to freeze a floored prefix at it")
     start = np.concatenate([D.x0, D.P0.ravel(order="F"), Q_pre.ravel(order="F"),
-                            [float(np.linalg.slogdet(Q_pre)[1]), 0.0]])    # (no relief: refused above)
+                            [float(np.linalg.slogdet(Q_pre)[1]), 0.0]])    # (the relief: by the bounds, below)
     # the information of the frozen steps (the model's term at Y_k = P0^-1, Q_k = Q_pre): a constant
     info_pre = offset * float(model.f_step(D.x0, D.x0, P_inv, Q_pre)[1])
 
@@ -108,6 +109,10 @@ def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
     off_rows = np.concatenate([np.arange(n_col_k * offset), kal0 + np.arange(t * (offset - 1))]).astype(int)
     lbg, ubg = nlp.lbg.copy(), nlp.ubg.copy()
     lbg[off_rows], ubg[off_rows] = -np.inf, np.inf
+    # the shorter problem's transition 1 (the graph's offset + 1) at its start's own level:
+    # the relief its own NLP adds to those rows, here taken off their bounds
+    first = np.arange(n_col_k * offset, n_col_k * (offset + 1))
+    lbg[first] -= D.relief
     keep = np.setdiff1d(np.arange(int(nlp.g.shape[0])), off_rows)
 
     zs, ps = ca.MX.sym("z", nlp.z.shape[0]), ca.MX.sym("p", nlp.p.shape[0])
@@ -135,7 +140,7 @@ def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
                    unpack_with, anchor_with, n_col_k * n, model,
                    # the Kalman rows of steps offset + 1 .. K: the first one holds Q_{offset+1} at (P0 + W)^-1
                    info={**info, "n_kalman": t * n, "frozen": offset}, graph=nlp.graph,
-                   source=nlp, offset=offset, start=start, extend=extend, fixed=(idx, vals),
+                   source=nlp, offset=offset, start=start, extend=extend, fixed=(idx, vals), relief=D.relief,
                    source_g=lambda gv: np.asarray(gv)[keep])     # the shorter problem's rows, in its order
 
 
@@ -164,10 +169,14 @@ class _Frozen(NLPProblem):
     extend: Callable[[Layout], Layout] | None = None      # a shorter point -> the longer NLP's
     fixed: tuple[np.ndarray, np.ndarray] | None = None    # the frozen variables' indices and values
     source_g: Callable[[np.ndarray], np.ndarray] | None = None
+    relief: float = 0.0                                   # the shorter problem's start relief (data.relief)
 
     def margin_values(self, zv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         col, tgt = self.margins(zv, self.start)          # the frozen transitions' rows come first
-        return np.asarray(col, float).ravel()[-self.n_collision:], np.asarray(tgt, float).ravel()
+        col = np.asarray(col, float).ravel()[-self.n_collision:]
+        J2 = self.n_collision // self.model.data.K
+        col[:J2] += self.relief                          # its transition 1 as its own NLP reads it
+        return col, np.asarray(tgt, float).ravel()
 
     def for_model(self, model: BeliefModel) -> NLPProblem:
         return self if model is self.model else frozen(self.source, model, self.offset)

@@ -212,10 +212,7 @@ def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, 
             raise ValidationError(name, "replan keeps the previous path's steps (minus advance) and its sensing; "
                                         "smooth reanchor(...) yourself to change them")
     # after executed steps the state's graph is read with them frozen (nlp_resume.advanced)
-    # (not from a start held to its own level: the frozen prefix would hold the
-    # shorter problem's first transition at the scenario's level)
-    resume = nlp_resume.advanced(previous.resume, advance) \
-        if isinstance(previous, SmoothResult) and scenario.start_confidence is None else None
+    resume = nlp_resume.advanced(previous.resume, advance) if isinstance(previous, SmoothResult) else None
     # the NLP's first stage starts from the last answer's variables and multipliers, CCP
     # from the conic step of its graph (the methods with the option "resume", when
     # their check takes this state: ipopt and auto IPOPT's, ccp any offset)
