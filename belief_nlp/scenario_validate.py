@@ -177,15 +177,15 @@ def _validate_start_confidence(sc) -> None:
     if c is None:
         return
     if not _finite(c) or not 0 < float(c) < 1:
-        raise ValidationError("start_confidence", f"must lie strictly between 0 and 1, got {c!r:.40}")
+        raise ValidationError("start.confidence", f"must lie strictly between 0 and 1, got {c!r:.40}")
     object.__setattr__(sc, "start_confidence", float(c))
     if sc.risk is not None:
-        raise ValidationError("start_confidence", "cannot be combined with a risk budget ('risk'): the budget "
+        raise ValidationError("start.confidence", "cannot be combined with a risk budget ('risk'): the budget "
                                                   "prices the start belief itself")
     from scipy.stats import chi2 as chi2_law
 
     if float(chi2_law.ppf(float(c), sc.dim)) > sc.chi2 * (1 + 1e-12):
-        raise ValidationError("start_confidence", f"{float(c):g} is above the scenario's own level (chi2 = "
+        raise ValidationError("start.confidence", f"{float(c):g} is above the scenario's own level (chi2 = "
                                                   f"{sc.chi2:.5g}): the start may only be held to a lower one")
 
 

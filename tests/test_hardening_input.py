@@ -118,6 +118,8 @@ def test_file_size_limits(tmp_path):
     (lambda d: d.__setitem__("domain", {"box": {"lower": [-1e7, 0], "upper": [1, 1]}}), "domain.box.lower"),
     (lambda d: d.__setitem__("domain", {"A": [[1, 0], [0, 1], [-1, -1]], "b": [1e300, 1, 1]}), "domain.b"),
     (lambda d: d["start"].__setitem__("x", [1e7, 0.5]), "start.x"),
+    (lambda d: d["start"].__setitem__("confidence", 1e300), "start.confidence"),
+    (lambda d: d["start"].__setitem__("confidence", -1e-300), "start.confidence"),
     (lambda d: d.__setitem__("alpha", 1e300), "alpha"),
     (lambda d: d.__setitem__("chi2", 1e300) or d.pop("confidence"), "chi2"),
     (lambda d: d.__setitem__("horizon", {"K": 10 ** 6}), "horizon.K"),

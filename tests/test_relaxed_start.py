@@ -151,10 +151,10 @@ def test_a_resumed_relaxed_replan_is_the_built_horizons_answer(case):
 
 
 @pytest.mark.parametrize("changes, field, text", [
-    ({"start_confidence": 0.95}, "start_confidence", "above the scenario's own level"),
-    ({"start_confidence": 1.0}, "start_confidence", "strictly between 0 and 1"),
-    ({"start_confidence": float("nan")}, "start_confidence", "strictly between 0 and 1"),
-    ({"start_confidence": 0.5, "risk": 0.05}, "start_confidence", "risk budget"),
+    ({"start_confidence": 0.95}, "start.confidence", "above the scenario's own level"),
+    ({"start_confidence": 1.0}, "start.confidence", "strictly between 0 and 1"),
+    ({"start_confidence": float("nan")}, "start.confidence", "strictly between 0 and 1"),
+    ({"start_confidence": 0.5, "risk": 0.05}, "start.confidence", "risk budget"),
 ])
 def test_bad_start_confidence_is_our_error(changes, field, text):
     sc = bn.load_scenario("paper-multi")
@@ -193,5 +193,5 @@ def test_relaxed_start_refuses_what_no_level_clears(case):
 def test_a_budget_with_a_relaxed_start_is_refused(case):
     sc, res, x, P, _ = case
     now = bn.relaxed_start(sc, x, P, previous=res, advance=1)
-    with pytest.raises(bn.ValidationError, match="start_confidence"):
+    with pytest.raises(bn.ValidationError, match="start.confidence"):
         bn.replan(now, res, advance=1, risk=0.05)

@@ -75,7 +75,7 @@ class ProblemData:
         under Sigma_k = P_prior_{k-1} + W (the continuous-time surrogate)."""
         relaxed = getattr(scenario, "start_confidence", None) is not None
         if relaxed and (budget is not None or continuous or chi2 is not None):
-            raise ValidationError("start_confidence", "a start held to its own level cannot be combined with a "
+            raise ValidationError("start.confidence", "a start held to its own level cannot be combined with a "
                                                       "risk budget or another collision level")
         W = np.asarray(scenario.W, float)
         sigma = float(np.sqrt(np.max(np.linalg.eigvalsh(W))))

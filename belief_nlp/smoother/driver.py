@@ -256,7 +256,7 @@ def _merge_options(options: dict) -> dict:
 def _budget(scenario: Scenario, risk: Any, allocation: Any, kind: Any) -> RiskBudget | None:
     """The run's risk budget: ``risk`` (a number or a RiskBudget), else the scenario's."""
     if risk is not None and scenario.start_confidence is not None:
-        raise ValidationError("start_confidence", "a start held to its own level cannot be smoothed under a risk "
+        raise ValidationError("start.confidence", "a start held to its own level cannot be smoothed under a risk "
                                                   "budget, which prices the start belief itself")
     if isinstance(risk, RiskBudget):
         return risk
