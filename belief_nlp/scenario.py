@@ -255,7 +255,8 @@ class Scenario:
 
     def __repr__(self) -> str:
         return (f"Scenario({self.name!r}, dim={self.dim}, obstacles={len(self.obstacles)}, "
-                f"chi2={self.chi2:.4g}, alpha={self.alpha:g}{'' if self.risk is None else f', risk={self.risk:g}'})")
+                f"chi2={self.chi2:.4g}, alpha={self.alpha:g}{'' if self.risk is None else f', risk={self.risk:g}'}"
+                f"{'' if self.start_confidence is None else f', start_confidence={self.start_confidence:.4g}'})")
 
 
 # -------------------------------------------------------------------- files

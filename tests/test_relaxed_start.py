@@ -195,3 +195,13 @@ def test_a_budget_with_a_relaxed_start_is_refused(case):
     now = bn.relaxed_start(sc, x, P, previous=res, advance=1)
     with pytest.raises(bn.ValidationError, match="start.confidence"):
         bn.replan(now, res, advance=1, risk=0.05)
+
+
+def test_the_planner_refuses_a_start_only_its_relief_clears(case):
+    sc, res, x, P, _ = case
+    now = bn.relaxed_start(sc, x, P)
+    with pytest.raises(bn.ValidationError, match="re-plan from a previous path") as err:
+        bn.plan(now, n_nodes=50)
+    assert err.value.field == "start.confidence"
+    # a start clear at the scenario's level plans as before, whatever start_confidence says
+    assert bn.plan(sc.with_options(start_confidence=0.5), n_nodes=300, seed=0, noise="per_step").success

@@ -70,7 +70,9 @@ def _describe_scenario(sc) -> str:
              f"({sc.domain.A.shape[0]} faces)",
              f"  target        {arr(sc.target.bounding_box()[0])} .. {arr(sc.target.bounding_box()[1])} "
              f"({sc.target.A.shape[0]} faces)",
-             f"  start         x0 = {arr(sc.x0)}, P0 = {arr(sc.P0)}",
+             f"  start         x0 = {arr(sc.x0)}, P0 = {arr(sc.P0)}"
+             + ("" if sc.start_confidence is None else
+                f", held to confidence {sc.start_confidence:g} (chi2 = {sc.chi2_start:.5g}) with transition 1"),
              f"  noise         W = {arr(sc.W)} per step, W_rate = {arr(sc.W_rate)} per metre",
              f"  alpha         {sc.alpha:g}",
              f"  ellipses      {conf}",

@@ -42,7 +42,7 @@ class ProblemData:
     chi2_target: float = float("nan")   # containment level (the scenario's; NaN: chi2)
     budget: float | None = None         # end-to-end risk budget: per-pair levels are variables
     continuous: bool = False            # levels asked under Sigma_k at both ends (risk.continuous_surrogate)
-    chi2_start: float = float("nan")    # level of transition 1's start end (scenario.chi2_start; NaN: chi2)
+    chi2_start: float = float("nan")    # level of transition 1, both ends (scenario.chi2_start; NaN: chi2)
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.chi2_target):
@@ -52,9 +52,9 @@ class ProblemData:
 
     @property
     def relief(self) -> float:
-        """chi2 - chi2_start >= 0: how much lower transition 1's start end is
-        held than every other row (a start datum, like x0: a parameter of
-        every form, not part of the cache key)."""
+        """chi2 - chi2_start >= 0: how much lower transition 1's rows are held
+        than every other pair's (a start datum, like x0: a parameter of every
+        form, not part of the cache key)."""
         return max(float(self.chi2) - float(self.chi2_start), 0.0)
 
     def collision_levels(self) -> np.ndarray:

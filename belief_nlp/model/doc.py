@@ -358,7 +358,7 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7, proximal: float = 0.0
     start = ca.vertsplit(parts[-2], list(np.cumsum([0, d, d * d, d * d, 1, d * d, 1])))
     x0, Q1, L0s, eps0_sq, T2 = start[0], ca.reshape(start[1], d, d), ca.reshape(start[2], d, d), start[3], \
         ca.reshape(start[4], d, d)
-    relief = start[5] * (1.0 + chi2_margin)            # the start end's level: chi2_start (1 + chi2_margin)
+    relief = start[5] * (1.0 + chi2_margin)            # transition 1's level: chi2_start (1 + chi2_margin)
     X = [x0] + [xt[:, k] + _pick(z, B.x[k][:, None]) for k in range(1, K + 1)]
     Q = [None, Q1] + [_pick(z, B.Q[k]) for k in range(2, K + 1)]
     S = [None] + [_pick(z, B.S[k]) for k in range(1, K + 1)]

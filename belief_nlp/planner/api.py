@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 from typing import Any
 
+import numpy as np
+
 from ..allocation import RiskBudget
 from ..errors import ValidationError
 from ..scenario import Scenario, load_scenario
@@ -81,7 +83,10 @@ def plan(scenario: Scenario, n_nodes: int | None = None, seed: int | None = 0, a
     ValidationError
         For an unknown option or an invalid value, naming it (an unknown
         ``planner``: field ``planner``; a budget outside (0, 0.5), not a
-        number, or already spent by the start belief: field ``risk``).
+        number, or already spent by the start belief: field ``risk``; a
+        start not clear at the scenario's level, held to a
+        ``start_confidence``: field ``start.confidence``, since every edge
+        is held to that level -- re-plan it with :func:`belief_nlp.replan`).
     ScenarioFileError
         When ``scenario`` names a file that cannot be read.
     SolverError
@@ -97,6 +102,16 @@ def plan(scenario: Scenario, n_nodes: int | None = None, seed: int | None = 0, a
                                           f"got {type(scenario).__name__}")
     if risk is not None:
         scenario = scenario.with_options(risk=risk)   # validated there: the start belief must leave some budget
+    if scenario.start_confidence is not None:
+        # the planner holds every edge to the scenario's level: a start the relief was needed
+        # for has no edge to grow from
+        from ..geometry import PolytopeSet, squared_mahalanobis_distance
+
+        d2 = squared_mahalanobis_distance(scenario.x0[None], scenario.P0[None], PolytopeSet.cached(scenario.hazards))
+        if not np.min(d2) >= scenario.chi2:
+            raise ValidationError("start.confidence", "the planner holds every edge to the scenario's level, and "
+                                                      "this start is not clear at it: re-plan from a previous "
+                                                      "path instead (belief_nlp.replan)")
     if ompl_name is not None:
         if scenario.risk is not None:
             raise ValidationError("risk", "applies to IG-RRT* only: OMPL planners plan at the scenario's fixed "
