@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from scipy.stats import chi2 as chi2_law
 
 import belief_nlp as bn
@@ -205,3 +207,25 @@ def test_the_planner_refuses_a_start_only_its_relief_clears(case):
     assert err.value.field == "start.confidence"
     # a start clear at the scenario's level plans as before, whatever start_confidence says
     assert bn.plan(sc.with_options(start_confidence=0.5), n_nodes=300, seed=0, noise="per_step").success
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+                                                                 HealthCheck.function_scoped_fixture])
+@given(step=st.integers(1, 15), angle=st.floats(0, 2 * np.pi), sigmas=st.floats(0, 3), shrink=st.floats(0.3, 1.5))
+def test_any_estimate_near_the_plan_gets_a_level_its_warm_start_meets(case, step, angle, sigmas, shrink):
+    """Property: wherever the estimate lands near the plan (up to 3 standard
+    deviations off, its covariance scaled), relaxed_start either refuses a
+    mean inside a hazard or gives a scenario whose re-anchored warm start is
+    built and verified at the levels the scenario states."""
+    sc, res, _, _, _ = case
+    P = shrink * res.path.P[step]
+    sd = np.sqrt(np.diag(res.path.P[step]))
+    x = res.path.x[step] + sigmas * sd * np.array([np.cos(angle), np.sin(angle)])
+    try:
+        now = bn.relaxed_start(sc, x, P, previous=res, advance=step)
+    except bn.ValidationError as exc:
+        assert exc.field in ("x0", "start") and ("inside" in str(exc) or "domain" in str(exc))
+        return
+    assert now.chi2_start <= sc.chi2
+    ws = bn.warm_start(now, bn.reanchor(now, res, step), sensing="path")
+    assert ws.report.safe and bn.verify(now, ws.path).safe
