@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import belief_nlp as bn
-from belief_nlp.methods import fatrop
+from belief_nlp.methods import fatrop, nlp_guarded
 from belief_nlp.methods.nlp_guarded import can_fork, guarded_call
 
 pytestmark = pytest.mark.skipif(not can_fork(), reason="no os.fork on this platform: solves run in the process")
@@ -57,6 +57,37 @@ def test_a_silent_child_is_ended_as_stalled_with_its_last_iteration():
     assert ended == "stalled" and sol is None
     assert st["iter_count"] == 6                         # the last line printed: "    6 ..."
     assert time.perf_counter() - t < 60                  # it returned (no hang), whatever the CPU
+
+
+class _Paced(_Fake):
+    """Prints ``lines`` lines ``gap`` s apart, is silent for ``pause`` s, then answers."""
+
+    def __init__(self, lines: int, gap: float, pause: float):
+        super().__init__(lines, "return")
+        self.gap, self.pause = gap, pause
+
+    def __call__(self, **args):
+        for i in range(self.lines):
+            os.write(1, f"{i:5d}  1.0\n".encode())
+            time.sleep(self.gap)
+        time.sleep(self.pause)
+        return {"x": np.zeros(1), "f": np.array([[0.0]])}
+
+
+def test_a_silence_long_against_the_solves_own_cadence_is_a_stall():
+    """Lines 10 ms apart, then 8 s of silence: a stall, although the cap
+    (600 s here, STALL_SECONDS by default) is far off -- the limit follows the
+    cadence (STALL_FACTOR x the longest wait, at least STALL_FLOOR = 2 s)."""
+    assert nlp_guarded.STALL_FLOOR < 8.0 < nlp_guarded.STALL_SECONDS
+    sol, st, ended = guarded_call(_Paced(20, 0.01, 8.0), {}, _stats, deadline=None, stall=600)
+    assert ended == "stalled" and sol is None and st["iter_count"] == 19
+
+
+def test_a_slow_but_steady_child_is_not_a_stall():
+    """Lines 0.6 s apart (60x the fast child's) from the start: each wait is
+    within the floor, then within 100x the longest so far; it answers."""
+    sol, st, ended = guarded_call(_Paced(6, 0.6, 0.0), {}, _stats, deadline=None, stall=600)
+    assert ended is None and sol is not None
 
 
 def test_the_deadline_ends_a_child_that_is_still_printing():

@@ -11,8 +11,13 @@ solver (nothing is rebuilt or pickled but the answer). The child's stdout
 is a pipe, both the C-level one and Python's ``sys.stdout`` (CasADi hands
 its plug-ins' output to the latter); the plug-in prints a line per
 iteration, and each line is a heartbeat. The parent ends the child when
-the run's deadline passes or no line came for :data:`STALL_SECONDS`, and
-reports which; an exception in the parent (Ctrl-C) ends it too.
+the run's deadline passes or no line came for too long, and reports which;
+an exception in the parent (Ctrl-C) ends it too. "Too long" follows the
+solve's own cadence: :data:`STALL_FACTOR` times the longest wait for a
+line so far (the first one included), at least :data:`STALL_FLOOR` and at
+most :data:`STALL_SECONDS` (docs/numerics.md, "fatrop": 86 solves at K = 20
+and 40, 2-D and 3-D, waited at most 0.022 s for a line; a hung one waits
+forever).
 
 Where ``os.fork`` does not exist (Windows) the call runs in the process, as
 before, and only the plug-in's own iteration limit bounds it.
@@ -34,11 +39,17 @@ import numpy as np
 
 from . import background
 
-__all__ = ["guarded_call", "can_fork", "STALL_SECONDS"]
+__all__ = ["guarded_call", "can_fork", "STALL_SECONDS", "STALL_FLOOR", "STALL_FACTOR"]
 
 #: a child that printed no line for this long is stuck inside an iteration
-#: (fatrop's iterations take 2-50 ms at K = 20-80 here; the hang was silent)
+#: (fatrop's iterations take 2-50 ms at K = 20-80 here; the hang was silent):
+#: the cap, and the limit before the first line
 STALL_SECONDS = 20.0
+#: once lines come, a wait STALL_FACTOR times the longest one so far is a stall,
+#: but never one shorter than STALL_FLOOR: the limit scales with the solve's
+#: own iteration time (a larger problem, a slower machine), not with a constant
+STALL_FACTOR = 100.0
+STALL_FLOOR = 2.0
 
 
 def can_fork() -> bool:
@@ -117,10 +128,14 @@ def _watch(r_log: int, r_res: int, deadline: float | None, stall: float,
            echo: bool) -> tuple[bytes, bytes, str | None]:
     """Read the child's two pipes until both close: (the pickled answer, the
     log's last 4 KiB, None), or stop early with the reason ("time_limit",
-    "stalled"). Each log chunk is a heartbeat; ``echo`` copies it to stdout."""
+    "stalled"). Each log chunk is a heartbeat; ``echo`` copies it to stdout.
+    ``stall`` is the longest wait allowed; once heartbeats come, the wait
+    allowed is STALL_FACTOR times the longest one so far, within
+    [min(STALL_FLOOR, stall), stall] (module doc)."""
     chunks: list[bytes] = []
     tail = b""
     last = time.perf_counter()
+    longest = None                                   # the longest wait for a heartbeat so far
     with selectors.DefaultSelector() as sel:
         sel.register(r_log, selectors.EVENT_READ, "log")
         sel.register(r_res, selectors.EVENT_READ, "result")
@@ -128,9 +143,10 @@ def _watch(r_log: int, r_res: int, deadline: float | None, stall: float,
             now = time.perf_counter()
             if deadline is not None and now >= deadline:
                 return b"", tail, "time_limit"
-            if now - last >= stall:
+            limit = stall if longest is None else min(stall, max(STALL_FLOOR, STALL_FACTOR * longest))
+            if now - last >= limit:
                 return b"", tail, "stalled"
-            wait = stall - (now - last) if deadline is None else min(stall - (now - last), deadline - now)
+            wait = limit - (now - last) if deadline is None else min(limit - (now - last), deadline - now)
             for key, _ in sel.select(timeout=max(wait, 0.0)):
                 data = os.read(key.fd, 1 << 16)
                 if not data:
@@ -138,7 +154,9 @@ def _watch(r_log: int, r_res: int, deadline: float | None, stall: float,
                 elif key.data == "result":
                     chunks.append(data)
                 else:
-                    last = time.perf_counter()
+                    beat = time.perf_counter()
+                    longest = max(longest or 0.0, beat - last)
+                    last = beat
                     tail = (tail + data)[-4096:]
                     if echo:
                         sys.stdout.write(data.decode(errors="replace"))
