@@ -15,9 +15,9 @@ the run's deadline passes or no line came for too long, and reports which;
 an exception in the parent (Ctrl-C) ends it too. "Too long" follows the
 solve's own cadence: :data:`STALL_FACTOR` times the longest wait for a
 line so far (the first one included), at least :data:`STALL_FLOOR` and at
-most :data:`STALL_SECONDS` (docs/numerics.md, "fatrop": 86 solves at K = 20
-and 40, 2-D and 3-D, waited at most 0.022 s for a line; a hung one waits
-forever).
+most :data:`STALL_SECONDS` (docs/numerics.md, "fatrop": 86 answered solves
+at K = 20 and 40, 2-D and 3-D, waited at most 0.022 s for a line; a hung
+one waits forever).
 
 Where ``os.fork`` does not exist (Windows) the call runs in the process, as
 before, and only the plug-in's own iteration limit bounds it.
