@@ -182,6 +182,14 @@ class Scenario:
         return min(float(chi2_law.ppf(self.start_confidence, self.dim)), self.chi2)
 
     @cached_property
+    def start_clearances(self) -> np.ndarray:
+        """(J,) squared Mahalanobis distance of the start belief to every
+        hazard (:attr:`hazards` order): what no path's first transition can exceed."""
+        from .geometry import PolytopeSet, squared_mahalanobis_distance
+
+        return squared_mahalanobis_distance(self.x0[None], self.P0[None], PolytopeSet.cached(self.hazards))[0]
+
+    @cached_property
     def walls(self) -> tuple[Polytope, ...]:
         """The outside of the domain as half-space obstacles (paper's X_out^l)."""
         return tuple(self.domain.complement_halfspaces("wall"))

@@ -167,7 +167,7 @@ def _validate(sc) -> None:
         if ellipse_clearance(x0, sc.P0, ob.A, ob.b, level) < 0:
             raise ValidationError("start", f"start confidence ellipse{at} is not clear of {ob.name}{hint}")
     if sc.risk is not None:
-        _validate_risk(sc, x0)
+        _validate_risk(sc)
 
 
 def _validate_start_confidence(sc) -> None:
@@ -189,18 +189,17 @@ def _validate_start_confidence(sc) -> None:
                                                   f"{sc.chi2:.5g}): the start may only be held to a lower one")
 
 
-def _validate_risk(sc, x0: np.ndarray) -> None:
+def _validate_risk(sc) -> None:
     """``risk``: a budget RiskBudget accepts, and more than the start belief
     alone spends. Every path's first transition starts at (x0, P0), so its
     certified clearance to hazard j is at most the start's squared
     Mahalanobis distance d_j, and its Boole sum at least sum_j g(d_j): a
     budget at or below that sum can be met by no path."""
     from .allocation import RiskBudget, tail
-    from .geometry import PolytopeSet, squared_mahalanobis_distance
 
     budget = RiskBudget(sc.risk).budget
     object.__setattr__(sc, "risk", budget)
-    d2 = squared_mahalanobis_distance(x0[None], sc.P0[None], PolytopeSet.build(list(sc.hazards)))[0]
+    d2 = sc.start_clearances
     spent = float(np.sum(tail(d2)))
     if not spent < budget:
         j = int(np.argmax(tail(d2)))

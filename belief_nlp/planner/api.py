@@ -102,16 +102,12 @@ def plan(scenario: Scenario, n_nodes: int | None = None, seed: int | None = 0, a
                                           f"got {type(scenario).__name__}")
     if risk is not None:
         scenario = scenario.with_options(risk=risk)   # validated there: the start belief must leave some budget
-    if scenario.start_confidence is not None:
+    if scenario.start_confidence is not None and not np.min(scenario.start_clearances) >= scenario.chi2:
         # the planner holds every edge to the scenario's level: a start the relief was needed
         # for has no edge to grow from
-        from ..geometry import PolytopeSet, squared_mahalanobis_distance
-
-        d2 = squared_mahalanobis_distance(scenario.x0[None], scenario.P0[None], PolytopeSet.cached(scenario.hazards))
-        if not np.min(d2) >= scenario.chi2:
-            raise ValidationError("start.confidence", "the planner holds every edge to the scenario's level, and "
-                                                      "this start is not clear at it: re-plan from a previous "
-                                                      "path instead (belief_nlp.replan)")
+        raise ValidationError("start.confidence", "the planner holds every edge to the scenario's level, and "
+                                                  "this start is not clear at it: re-plan from a previous "
+                                                  "path instead (belief_nlp.replan)")
     if ompl_name is not None:
         if scenario.risk is not None:
             raise ValidationError("risk", "applies to IG-RRT* only: OMPL planners plan at the scenario's fixed "
