@@ -142,18 +142,24 @@ class BeliefModel:
         return z.x[:-1], P[:-1], z.x[1:], np.broadcast_to(D.W, P[1:].shape).copy()
 
     def transition_margins(self, z: Layout) -> tuple[np.ndarray, np.ndarray]:
-        """Theorem-1 margins (certificate values) of both ends of every
-        transition and hazard, scaled units, >= 0 is clear: (start (K, J), end (K, J)).
-        Under the continuous surrogate both ends use Sigma_k."""
+        """Theorem-1 margins (certificate values minus each transition's level,
+        as the NLP's rows) of both ends of every transition and hazard, scaled
+        units, >= 0 is clear: (start (K, J), end (K, J)). Transition 1's level
+        is the start's own (chi2 - relief). Under the continuous surrogate
+        both ends use Sigma_k."""
         D = self.data
         if D.continuous:
             T = self.surrogate_information(z)
-            return (self._pairs(z.x[:-1], T, z.lam, self.f_margin_inv),
-                    self._pairs(z.x[1:], T, z.lam, self.f_margin_inv))
-        end = self._pairs(z.x[1:], z.Q[1:], z.lam, self.f_margin_inv)
-        start = np.empty_like(end)
-        start[1:] = self._pairs(z.x[1:-1], z.Y[1:-1], z.lam[1:], self.f_margin_inv)
-        start[0] = self._pairs(z.x[:1], D.P0[None], z.lam[:1], self.f_margin_cov)[0]
+            start = self._pairs(z.x[:-1], T, z.lam, self.f_margin_inv)
+            end = self._pairs(z.x[1:], T, z.lam, self.f_margin_inv)
+        else:
+            end = self._pairs(z.x[1:], z.Q[1:], z.lam, self.f_margin_inv)
+            start = np.empty_like(end)
+            start[1:] = self._pairs(z.x[1:-1], z.Y[1:-1], z.lam[1:], self.f_margin_inv)
+            start[0] = self._pairs(z.x[:1], D.P0[None], z.lam[:1], self.f_margin_cov)[0]
+        if D.relief:
+            start[0] += D.relief
+            end[0] += D.relief
         return start, end
 
     def clearances(self, z: Layout) -> np.ndarray:
@@ -161,7 +167,7 @@ class BeliefModel:
         smaller Theorem-1 certificate value of its two ends (a rigorous lower
         bound over the whole transition)."""
         start, end = self.transition_margins(z)
-        return np.minimum(start, end) + self.data.chi2
+        return np.minimum(start, end) + self.data.collision_levels()
 
     def risk_sum(self, z: Layout) -> float:
         """sum_kj g(clearance_kj): the certified step-time collision bound of

@@ -263,18 +263,14 @@ class SmoothingProblem:
                 z.lam = np.maximum(z.lam, 0.0)
             segments = self.model.segments(z)
             levels = D.collision_levels()             # chi2; transition 1 at the start's own level
-            start, end = self.model.transition_margins(z)
-            start[0] += D.relief                      # both ends held to chi2_start (the model's rows)
-            end[0] += D.relief
+            start, end = self.model.transition_margins(z)     # each against its transition's level
             out = z
             bad = ~(np.minimum(start, end) >= accept)
             if np.any(bad):
                 out = z.copy()
-                lam = segment_certificates(*segments, self.hazards_scaled, levels if D.relief else D.chi2)
+                lam = segment_certificates(*segments, self.hazards_scaled, levels)
                 out.lam = np.where(bad[..., None], lam, z.lam)
                 start, end = self.model.transition_margins(out)
-                start[0] += D.relief
-                end[0] += D.relief
             lower = float(np.min(np.minimum(start, end)))
             target = float(np.min(self.model.target_margins(out)))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
