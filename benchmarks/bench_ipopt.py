@@ -53,6 +53,7 @@ import numpy as np
 
 import belief_nlp as bn
 from belief_nlp.methods import ipopt
+from belief_nlp.methods.solver_logs import log_dir
 
 HERE = Path(__file__).resolve().parent / "results"
 
@@ -131,8 +132,7 @@ _ROW = re.compile(r"^\s*(\d+)(r?)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S+\s+(\S+)\s+\S
 
 
 def _log_sizes() -> dict:
-    return {f: os.path.getsize(f) for f in glob.glob(os.path.join(ipopt._LOG_DIR[0], "*.log"))} \
-        if ipopt._LOG_DIR else {}
+    return {f: os.path.getsize(f) for f in glob.glob(os.path.join(log_dir("ipopt"), "*.log"))}
 
 
 def _new_log_text(before: dict) -> str:

@@ -7,10 +7,8 @@ behind them are in docs/numerics.md, "IPOPT" and "IPOPT iterations".
 
 from __future__ import annotations
 
-import atexit
 import os
 import re
-import shutil
 import tempfile
 from typing import Any
 
@@ -18,6 +16,7 @@ from ..smoother.context import Outcome, SmoothingProblem
 from ..smoother.registry import Method, Option, real, register
 from .nlp_engine import NLPBackend, clear_cache, nlp_options, run_nlp
 from .nlp_padded import PaddedSolver, pads
+from .solver_logs import log_dir
 
 __all__ = ["run", "DEFAULT_IPOPT_OPTIONS", "map_status", "clear_cache", "IPOPT"]
 
@@ -73,7 +72,6 @@ _MAX_ITER = {"Maximum_Iterations_Exceeded"}
 _TIME = {"Maximum_CpuTime_Exceeded", "Maximum_WallTime_Exceeded"}
 _RESTO = re.compile(rb"^\s*\d+r\s", re.M)
 _REASON = re.compile(r"(?:Exception message|EXIT):\s*(.+)")
-_LOG_DIR: list[str] = []
 
 
 def map_status(ipopt_status: str) -> str:
@@ -122,13 +120,10 @@ class IpoptBackend(NLPBackend):
         return map_status(raw)
 
     def log_file(self) -> str:
-        """A fresh log file in a per-process folder removed at exit. CasADi's
+        """A fresh log file in a per-process folder (:mod:`.solver_logs`). CasADi's
         IPOPT statistics carry no restoration flag; the log's iteration table
         marks restoration iterations with "r", so each solve reads its part."""
-        if not _LOG_DIR:
-            _LOG_DIR.append(tempfile.mkdtemp(prefix="belief_nlp_ipopt_"))
-            atexit.register(shutil.rmtree, _LOG_DIR[0], True)
-        fd, path = tempfile.mkstemp(suffix=".log", dir=_LOG_DIR[0])
+        fd, path = tempfile.mkstemp(suffix=".log", dir=log_dir("ipopt"))
         os.close(fd)
         return path
 
