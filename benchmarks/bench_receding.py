@@ -7,7 +7,9 @@ answer's resume state dropped, the caches cleared before each: a loop of
 more horizons than the memory cache holds, 8 graphs, builds every one).
 Now the previous answer's graph is solved
 with the executed steps frozen at the new start belief, resumed from its
-variables and multipliers ("frozen" rows: ``bn.replan`` as is).
+variables and multipliers ("frozen" rows: ``bn.replan`` as is); for
+``fatrop`` and ``sqp``, which take no initial multipliers, solved there from
+the re-anchored path (session 29).
 
 Protocol: paper-multi; per seed an IG-RRT* plan (N = 500, per-step noise),
 the warm start at K and ``--method``'s answer (alpha 1). Then ``--steps``
@@ -91,6 +93,7 @@ def _summary(rows: list[dict], fz: list[dict]) -> dict:
         "median_iterations_frozen": float(np.median([a["iterations"] for a in fz])),
         "verified_frozen": int(sum(a["verified"] for a in fz)),
         "resumed_yes": int(sum(a["resumed"] == "yes" for a in fz)),
+        "on_graph": int(sum(a["resumed"] == "graph" for a in fz)),     # no multipliers (fatrop, Uno): graph only
         "resumed_polish": int(sum(a.get("resumed_stage") == "polish" for a in fz)),
         "ccp_polish_frozen": int(sum(bool(a.get("ccp_frozen")) for a in fz)),
         "statuses_frozen": {s: int(sum(a["status"] == s for a in fz)) for s in sorted({a["status"] for a in fz})},

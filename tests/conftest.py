@@ -9,6 +9,7 @@ import os
 os.environ["BELIEF_NLP_CACHE_DIR"] = "0"
 os.environ["BELIEF_NLP_CACHE_COMPILE"] = "0"
 
+import casadi as ca  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from hypothesis import settings  # noqa: E402
@@ -42,6 +43,50 @@ def paper_multi_path_pair(steps_per_segment: int = 4, sensing: float = 1e4):
     K = x.shape[0] - 1
     S = np.broadcast_to(sensing * np.eye(2), (K, 2, 2))
     return sc, bn.BeliefPath.from_sensing(x, sc.P0, S, W=sc.W)
+
+
+def perturbed(model, z0, rng):
+    """``z0`` (a Layout of ``model``'s horizon) with the means moved ~1 cm,
+    sensing added and the certificates scaled ~5 %, tightened back into the
+    model's domain: a point to compare two forms of one problem at."""
+    q = z0.copy()
+    q.x[1:] += 0.01 * rng.normal(size=q.x[1:].shape)
+    q.S[1:] += 1e2 * np.eye(q.x.shape[1]) * rng.uniform(0, 1, (q.x.shape[0] - 1, 1, 1))
+    q.lam = q.lam * np.exp(0.05 * rng.normal(size=q.lam.shape))
+    return model.tighten(q)
+
+
+def _rows(form, zv, pv) -> np.ndarray:
+    """A form's rows at (z, p), in its source NLP's order."""
+    g = np.asarray(ca.Function("g", [form.z, form.p], [form.g])(zv, pv)).ravel()
+    return form.source_g(g) if hasattr(form, "source_g") else g
+
+
+def assert_frozen_is_shorter(view, short, model, z0, rng, points: int = 3) -> list:
+    """At ``points`` perturbed points of the shorter problem (``model``,
+    ``short`` its own form), the frozen form ``view`` has the same margins,
+    cost parts, collision and target rows against their bounds, means, and
+    an objective off by one constant (the frozen steps' information). Per
+    point: (q, zv, view's rows, short's rows), rows in the source order."""
+    out, gaps = [], []
+    for _ in range(points):
+        q = perturbed(model, z0, rng)
+        zv, zs = view.pack(q), short.pack(q)
+        pv, ps = view.anchor(q), short.anchor(q)
+        for a, b in zip(view.margin_values(zv), short.margin_values(zs)):
+            np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7)
+        for a, b in zip(view.parts(zv, pv), short.parts(zs, ps)):
+            assert float(a) == pytest.approx(float(b), rel=1e-9, abs=1e-12)
+        gv, gs = _rows(view, zv, pv), _rows(short, zs, ps)
+        lbv, lbs = (f.source_g(f.lbg) if hasattr(f, "source_g") else f.lbg for f in (view, short))
+        n = short.n_collision + short.info["n_target"]
+        np.testing.assert_allclose(gv[:n] - lbv[:n], gs[:n] - lbs[:n], rtol=1e-7, atol=1e-7)
+        gaps.append(float(ca.Function("f", [view.z, view.p], [view.f])(zv, pv))
+                    - float(ca.Function("f", [short.z, short.p], [short.f])(zs, ps)))
+        np.testing.assert_allclose(view.unpack(zv).x, q.x, rtol=0, atol=1e-12)
+        out.append((q, zv, gv, gs))
+    assert np.ptp(gaps) < 1e-10 * max(1.0, abs(gaps[0]))
+    return out
 
 
 def ccp_problem(sc, path, alpha: float = 1.0):

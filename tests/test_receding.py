@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import casadi as ca
 import numpy as np
 import pytest
 
@@ -21,7 +20,7 @@ from belief_nlp.model import BeliefModel
 from belief_nlp.model.nlp_form import build_nlp
 from belief_nlp.model.nlp_prefix import frozen
 
-from conftest import paper_multi_path_pair
+from conftest import assert_frozen_is_shorter, paper_multi_path_pair
 
 KW = {"method": "ipopt", "alpha": 1.0, "max_iter": 3000}
 
@@ -60,35 +59,12 @@ def test_the_frozen_nlp_is_the_shorter_problem(plan10, formulation, offset, rela
     short = build_nlp(short_model, formulation, floor=1e-3)
     ws = bn.warm_start(moved, bn.reanchor(moved, previous, advance=offset), sensing="path")
     z0 = short_model.tighten(short_model.from_path(ws.path, ws.lam))
-    rng = np.random.default_rng(7)
-    gaps = []
-    for _ in range(3):
-        q = z0.copy()
-        q.x[1:] += 0.01 * rng.normal(size=q.x[1:].shape)
-        q.S[1:] += 1e2 * np.eye(2) * rng.uniform(0, 1, (K - offset, 1, 1))
-        q.lam = q.lam * np.exp(0.05 * rng.normal(size=q.lam.shape))
-        q = short_model.tighten(q)
-        zv, zs = view.pack(q), short.pack(q)
-        pv, ps = view.anchor(q), short.anchor(q)
-        for a, b in zip(view.margin_values(zv), short.margin_values(zs)):
-            np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7)
-        for a, b in zip(view.parts(zv, pv), short.parts(zs, ps)):
-            assert float(a) == pytest.approx(float(b), rel=1e-9, abs=1e-12)
-        gv = view.source_g(np.asarray(ca.Function("g", [view.z, view.p], [view.g])(zv, pv)).ravel())
-        gs = np.asarray(ca.Function("g", [short.z, short.p], [short.g])(zs, ps)).ravel()
+    for q, zv, gv, gs in assert_frozen_is_shorter(view, short, short_model, z0, np.random.default_rng(7)):
         n_rows = short.n_collision + short.info["n_target"]
-        lbv = view.source_g(view.lbg)
-        np.testing.assert_allclose(gv[:n_rows] - lbv[:n_rows], gs[:n_rows] - short.lbg[:n_rows], rtol=1e-7, atol=1e-7)
         t = len(short.info["tri"])
         np.testing.assert_allclose(gv[n_rows:n_rows + t], 0.0, atol=1e-9)       # Q_{offset+1} = (P0 + W)^-1
         np.testing.assert_allclose(gv[n_rows + t:], gs[n_rows:], rtol=1e-7, atol=1e-9)
-        f_view = float(ca.Function("f", [view.z, view.p], [view.f])(zv, pv))
-        f_short = float(ca.Function("f", [short.z, short.p], [short.f])(zs, ps))
-        gaps.append(f_view - f_short)
-        back = view.unpack(zv)
-        np.testing.assert_allclose(back.x, q.x, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(back.S[1:], q.S[1:], rtol=1e-9, atol=1e-9)
-    assert np.ptp(gaps) < 1e-10 * max(1.0, abs(gaps[0]))
+        np.testing.assert_allclose(view.unpack(zv).S[1:], q.S[1:], rtol=1e-9, atol=1e-9)
     # the frozen variables are the prefix's; the free ones the shorter problem's and M_{offset+1}
     free = view.lbz < view.ubz
     assert free.sum() == (short.lbz < short.ubz).sum() + len(short.info["tri"])

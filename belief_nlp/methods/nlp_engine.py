@@ -35,7 +35,10 @@ answer was the run's (its switched-off sensing stays off: a loop's re-plan
 keeps the sensing pattern while this converges); when it does not end
 converged and exactly safe, the first stage resumes from its own earlier
 state and the polish follows; when that fails too, the usual first stage
-runs from the warm start.
+runs from the warm start. A backend without ``warm_duals`` (fatrop, Uno)
+keeps a state of the graph alone: its re-plan after executed steps runs the
+usual stages from the warm start on that graph, the steps frozen, so
+nothing is built.
 
 When a stage stops without converging (iteration share, solver failure, a
 stall of ``stall`` iterations without a lower feasible cost), the solver is
@@ -64,9 +67,11 @@ Kalman-equality residual. Stats: ``attempts`` (formulation, return status,
 iterations, restoration iterations, CPU and wall seconds), ``iter_count``,
 ``restoration``, ``cpu_time``, ``return_status``, ``polish_status``,
 ``resumed`` (with the option ``resume``: "yes", "fell back" when that solve
-did not end converged and exactly safe and the usual first stage ran, "does
-not fit" when it cannot be used here: another graph, plug-in, floor,
-formulation or ``scale_means``; "no" without it), ``resumed_stage``
+did not end converged and exactly safe and the usual first stage ran,
+"graph" when a state without multipliers gave the graph the usual stages
+ran on, "does not fit" when it cannot be used here: another graph, plug-in,
+floor, formulation or ``scale_means``, or a prefix that cannot be frozen at
+this start; "no" without it), ``resumed_stage``
 ("polish" or "first": which resumed stage answered; None otherwise),
 ``polish_skipped`` (a re-plan after one whose polish did not lower its
 answer skips it, ``polish_retry`` times: :data:`POLISH_RETRY`),
@@ -296,18 +301,25 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
     bar = problem.progress_bar(backend.name)
     common = dict(margin=margin, regularisation=regularisation, candidates=candidates, cache=cache, bar=bar,
                   stall=stall)
-    resumable = backend.warm_duals and formulation == "logchol" and scale_means == 1
+    # a state of the graph (the scenario and K) this run solves; its variables and
+    # multipliers a start only for a solver that takes initial multipliers
+    graphed = formulation == "logchol" and scale_means == 1
+    resumable = backend.warm_duals and graphed
     resumed = "no" if resume is None else "does not fit"
     # a state of a longer horizon (steps executed since) is read with them
     # frozen; not under a risk budget, whose levels depend on the horizon
-    fits = resumable and resume is not None and (resume["offset"] == 0 or problem.model.risk_budget is None)
+    fits = graphed and resume is not None and (resume["offset"] == 0 or problem.model.risk_budget is None)
     prefix = int(resume["offset"]) if fits else 0
-    key = _base_key(longer(problem.model, prefix), formulation, margin, regularisation) if resumable else ""
+    key = _base_key(longer(problem.model, prefix), formulation, margin, regularisation) if graphed else ""
     try:
         before = direct = stepped = None
         reentered = 0
         polish_opts = backend.options(problem.solver_options, problem.tol, "polish")
-        ours = fits and nlp_resume.matches(resume, backend.plugin, key, floor)
+        ours = fits and nlp_resume.matches(resume, backend.plugin, key, floor) \
+            and nlp_resume.has_duals(resume) == backend.warm_duals
+        # without multipliers: the usual stages from the warm start, on the state's graph (nothing built)
+        on_graph = ours and not backend.warm_duals
+        ours = ours and backend.warm_duals
         skip = int(resume.get("polish_skip", 0)) if ours and polish_retry else 0
         if ours and polish and resume.get("polish"):
             # the last polish's answer and multipliers: that stage alone, when it ends converged and safe
@@ -323,14 +335,21 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
                 before.attempts, before.used = direct.attempts + before.attempts, direct.used + before.used
         if before is None or before.answer is None:
             # the usual stage from the warm start: on the frozen graph when the
-            # resumed solve ran there (nothing built), else on the problem's own
-            if prefix and before is None:
-                prefix, key = 0, _base_key(problem.model, formulation, margin, regularisation)
-            first = _solve_stage(problem, backend, Stage(), formulation=formulation, floor=floor, opts=opts,
-                                 rescue=rescue_opts,
-                                 start=problem.start, max_iter=max_iter - (before.used if before else 0),
-                                 restarts=restarts, offset=problem.iterations, scale=scale_means, prefix=prefix,
-                                 **common)
+            # resumed solve ran there or the state has no multipliers (nothing
+            # built), else on the problem's own
+            usual = dict(formulation=formulation, floor=floor, opts=opts, rescue=rescue_opts, start=problem.start,
+                         max_iter=max_iter - (before.used if before else 0), restarts=restarts,
+                         offset=problem.iterations, scale=scale_means, **common)
+            first = _frozen_stage(problem, backend, prefix=prefix, **usual) \
+                if prefix and (before is not None or on_graph) else None
+            if first is None:
+                if prefix:                       # the problem's own graph
+                    if on_graph:                 # (the prefix cannot be frozen at this start)
+                        on_graph, resumed = False, "does not fit"
+                    prefix, key = 0, _base_key(problem.model, formulation, margin, regularisation)
+                first = _solve_stage(problem, backend, Stage(), prefix=0, **usual)
+            if on_graph:
+                resumed = "graph"
             if before is not None:       # one stage in the stats: the resumed solve, then the usual one
                 first.attempts, first.used = before.attempts + first.attempts, before.used + first.used
         else:
@@ -407,7 +426,10 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         if answered and pol.solved is not None else None
     if out.stats["sensing_stationary"] is False:
         out.message += "; sensing at a step the polish switched off would lower the cost (auto's CCP polish does)"
-    if key and first.answer is not None and first.duals is not None:
+    if key and first.answer is not None and not backend.warm_duals:
+        # a state of the graph alone (no multipliers): a re-plan after executed steps solves on it
+        out.resume = nlp_resume.state(backend.plugin, key, floor, np.zeros(0), None, prefix)
+    elif key and first.answer is not None and first.duals is not None:
         # the polish's state when its answer is the run's (a later re-plan resumes it alone)
         # (a polish at a stepped-down floor is not: a re-plan's resumed polish switches off at the run's floor)
         polished = (pol.z, pol.duals) if answered and stepped != "polished" else None

@@ -73,7 +73,8 @@ def nlp_options(solver: str) -> dict[str, Option]:
                                             "(e.g. IPOPT's {'mu_min': 1e-7}, its barrier floor before 3e-6: "
                                             "docs/numerics.md, \"The first stage's barrier floor\")",
                                       _check_stage_options),
-        "resume": Option(None, "an earlier answer's first-stage state (SmoothResult.resume) to start that stage "
-                               "from, on the same scenario and K (bn.replan passes it; used by solvers that take "
-                               "initial multipliers: IPOPT)", nlp_resume.check),
+        "resume": Option(None, "an earlier answer's first-stage state (SmoothResult.resume), on the same scenario "
+                               "and K (bn.replan passes it): IPOPT starts that stage from its variables and "
+                               "multipliers; fatrop and Uno, which take no multipliers, solve a re-plan after "
+                               "executed steps on its graph, nothing built", nlp_resume.check),
     }

@@ -46,7 +46,7 @@ from ..errors import ValidationError
 from .data import Layout
 from .evaluate import BeliefModel
 from .nlp_form import NLPProblem
-from .ocp_form import stage_labels
+from .ocp_form import OCPProblem, stage_labels
 
 __all__ = ["frozen", "longer"]
 
@@ -73,6 +73,8 @@ def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
     (its solver solves it). Raises ValidationError when the prefix cannot be
     frozen (horizons, a risk budget, or P0^-1 - floor^2 I not positive
     definite for "logchol")."""
+    if isinstance(nlp, OCPProblem):
+        return _frozen_stages(nlp, model, offset)
     info, D = nlp.info, model.data
     K, d, tri, floor = info["K"], info["d"], info["tri"], info["floor"]
     n = K - offset
@@ -189,3 +191,36 @@ class _Frozen(NLPProblem):
         idx, vals = self.fixed
         z0[idx] = lbz[idx] = ubz[idx] = vals
         return z0, lbz, ubz
+
+
+def _frozen_stages(ocp: OCPProblem, model: BeliefModel, offset: int) -> OCPProblem:
+    """:func:`frozen` of a stage-ordered form (fatrop's): its source NLP
+    frozen, the bounds carried over (the copies stay free: their gap rows
+    tie them to the fixed originals; a frozen step's rows are path rows, so
+    freeing them keeps the stage structure)."""
+    src = frozen(ocp.source, model, offset)
+    lbz, ubz, lbg, ubg = ocp.lbz.copy(), ocp.ubz.copy(), ocp.lbg.copy(), ocp.ubg.copy()
+    lbz[ocp.orig], ubz[ocp.orig] = src.lbz, src.ubz
+    lbg[ocp.source_rows], ubg[ocp.source_rows] = src.lbg, src.ubg
+    zs, ps = ca.MX.sym("z", ocp.z.shape[0]), ca.MX.sym("p", ocp.p.shape[0])
+    parts = ca.Function("ocp_parts", [zs, ps], list(src.parts(zs[ocp.orig.tolist()], ps)), ["z", "p"],
+                        ["control", "information", "regulariser"])
+    return _FrozenStages(src, ocp.z, ocp.p, ocp.f, ocp.g, lbz, ubz, lbg, ubg, parts, ocp.margins, ocp.src,
+                         ocp.orig, ocp.source_rows, ocp.N, ocp.nx, ocp.nu, ocp.ng,
+                         {**ocp.info, "n_kalman": src.info["n_kalman"], "frozen": offset}, ocp.extra,
+                         base=ocp, offset=offset)
+
+
+@dataclass
+class _FrozenStages(OCPProblem):
+    """:func:`_frozen_stages`' form: its bounds follow the model's start."""
+
+    base: OCPProblem | None = None       # the form of the longer horizon, nothing frozen
+    offset: int = 0
+
+    def for_model(self, model: BeliefModel) -> OCPProblem:
+        return self if model is self.source.model else frozen(self.base, model, self.offset)
+
+    def source_g(self, gv: np.ndarray) -> np.ndarray:
+        # the longer NLP's rows, then the shorter problem's among them, in its order
+        return self.source.source_g(super().source_g(gv))

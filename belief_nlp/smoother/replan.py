@@ -179,7 +179,8 @@ def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, 
         its variables and multipliers (:attr:`SmoothResult.resume`): a few
         iterations instead of a new descent; one of ``ccp`` the horizon of
         its conic step (docs/performance.md, "Re-planning from a new
-        belief"). A state goes only to a method whose ``resume`` option
+        belief"); one of ``fatrop`` or ``sqp`` its graph (they take no
+        multipliers). A state goes only to a method whose ``resume`` option
         takes it.
     advance : int, optional
         Steps executed since ``previous`` (default 0); the horizon becomes

@@ -175,7 +175,8 @@ class SmoothResult:
         after executed steps (:func:`belief_nlp.replan` passes it on): for
         IPOPT's first stage (methods ``ipopt`` and ``auto``) its converged
         variables and multipliers (and its polish's), and the NLP graph they
-        belong to; for ``ccp`` the steps its conic step's horizon is
+        belong to; for ``fatrop`` and ``sqp`` the graph alone (they take no
+        multipliers); for ``ccp`` the steps its conic step's horizon is
         longer by (``offset``); None for other methods. In memory only: not
         saved, not compared.
     """
