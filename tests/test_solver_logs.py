@@ -58,3 +58,79 @@ def test_log_dir_is_per_process_and_reused(monkeypatch, tmp_path):
     assert os.path.basename(first).startswith(f"belief_nlp_probe_{os.getpid()}_")
     os.rmdir(first)                      # gone (e.g. removed by a parent after a fork): made anew
     assert os.path.isdir(solver_logs.log_dir("probe"))
+
+
+@pytest.fixture(scope="module")
+def small_case():
+    import belief_nlp as bn
+    sc = bn.load_scenario("paper-multi")
+    return sc, bn.plan(sc, n_nodes=150, seed=0).path
+
+
+def _logs() -> set:
+    return set(os.listdir(solver_logs.log_dir("ipopt")))
+
+
+def test_a_solvers_log_goes_with_it(small_case, monkeypatch):
+    """A solver built for one call (cache=False) leaves no log file after
+    it (the log was read: restoration counted); nor do cached ones once the
+    cache is cleared."""
+    import gc
+
+    import belief_nlp as bn
+    from belief_nlp.methods import nlp_build
+    from belief_nlp.methods.ipopt import IPOPT
+    sc, path = small_case
+    read = []
+    count = type(IPOPT).restoration
+
+    def restoration(self, stats, log_path, offset):
+        read.append(os.path.getsize(log_path) - offset)      # the solve's part of the log, when it is read
+        return count(self, stats, log_path, offset)
+    monkeypatch.setattr(type(IPOPT), "restoration", restoration)
+    before = _logs()
+    r = bn.smooth(sc, path, method="ipopt", K=7, cache=False)
+    gc.collect()
+    assert r.safe and len(read) == len(r.stats["attempts"]) and min(read) > 1000
+    assert _logs() <= before
+    bn.smooth(sc, path, method="ipopt", K=7)
+    assert len(_logs() - before) == 2
+    nlp_build.clear_cache()
+    gc.collect()
+    assert _logs() <= before
+
+
+def test_a_cached_solver_with_a_long_log_is_built_anew(small_case, monkeypatch):
+    import gc
+
+    import belief_nlp as bn
+    sc, path = small_case
+    first = bn.smooth(sc, path, method="ipopt", K=9)
+    again = bn.smooth(sc, path, method="ipopt", K=9)
+    assert again.stats["build"] == "memory"
+    logs = _logs()
+    monkeypatch.setattr(solver_logs, "LOG_LIMIT", 1)
+    renewed = bn.smooth(sc, path, method="ipopt", K=9)
+    gc.collect()
+    assert renewed.stats["build"] != "memory"
+    assert renewed.cost == first.cost and renewed.nit == first.nit     # the same solve, a new log
+    assert not logs & _logs()                                           # the long logs are gone
+
+
+def test_a_forked_child_leaves_the_parents_logs(small_case):
+    """A forked worker that drops an inherited solver must not remove the
+    log its parent's solver still writes to."""
+    import gc
+
+    import belief_nlp as bn
+    from belief_nlp.methods import nlp_build
+    sc, path = small_case
+    bn.smooth(sc, path, method="ipopt", K=11)
+    logs = _logs()
+    pid = os.fork()
+    if pid == 0:                                  # the child: drop every inherited solver
+        nlp_build.clear_cache()
+        gc.collect()
+        os._exit(0)
+    os.waitpid(pid, 0)
+    assert logs <= _logs()

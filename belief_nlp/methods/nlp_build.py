@@ -16,7 +16,7 @@ from ..model.cache import MODEL_REVISION, MemoryCache, compile_enabled, disk_cac
 from ..model.evaluate import BeliefModel
 from ..model.nlp_form import NLPProblem, build_nlp
 from ..model.nlp_prefix import frozen, longer
-from . import nlp_compiled
+from . import nlp_compiled, solver_logs
 from .nlp_backend import NLPBackend
 from .nlp_recorder import Recorder
 from .nlp_scaled import scaled
@@ -89,6 +89,8 @@ def solver_of(model: BeliefModel, backend: NLPBackend, opts: dict, formulation: 
     key = problem_key(model.data, margin,
                       f"{backend.plugin}:{formulation}:{regularisation}:{floor_key}{scale_key}:{sorted(opts.items())!r}")
     entry = _CACHE.get(key) if cache else None
+    if entry is not None and solver_logs.full(entry[2].log_path):
+        entry = None          # a new solver and log; the old log goes with its recorder
     if entry is not None:
         # the key leaves out the start belief (a parameter): read this model's
         entry[2].bind(entry[0])
@@ -108,6 +110,7 @@ def solver_of(model: BeliefModel, backend: NLPBackend, opts: dict, formulation: 
     given, source, fill = _given_derivatives(nlp, backend, shared, slot, cache) if own else ({}, "", None)
     recorder = Recorder(nlp, keep=candidates, bar=None, stall=0, pad=backend.pads(opts))
     recorder.log_path = backend.log_file()
+    solver_logs.tie(recorder, recorder.log_path)
     name = f"belief_nlp_{backend.plugin}" + ("_scaled" if scale != 1 else "")
     try:
         solver = backend.nlpsol(name, {"x": nlp.z, "p": nlp.p, "f": nlp.f, "g": nlp.g},
