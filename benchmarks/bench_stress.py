@@ -22,7 +22,9 @@ touches a hazard (``ValidationError`` from ``with_options``) is recorded and
 taken as planned instead; a start no sensing can clear
 (``InfeasibleStartError``) ends the loop (docs/mpc.md). With ``--relax`` each
 start comes from ``bn.relaxed_start`` instead: its first transition held to a
-level it can meet.
+level it can meet. With ``--build`` every re-plan builds its shorter horizon
+(the last answer's resume state dropped), the comparison for re-plans on
+the last graph.
 """
 
 from __future__ import annotations
@@ -107,7 +109,9 @@ def run_loop(case: dict) -> dict:
             now = sc.with_options(x0=cur.path.x[1], P0=cur.path.P[1])
         t = time.perf_counter()
         try:
-            nxt = bn.replan(now, cur, advance=1, method=case["method"])
+            # --build: drop the last answer's resume state, so every re-plan builds its horizon
+            nxt = bn.replan(now, cur, advance=1, method=case["method"],
+                            **({"resume": None} if case.get("build") else {}))
         except Exception as exc:                         # InfeasibleStartError ends a loop; anything else too
             ended = type(exc).__name__
             break
@@ -167,6 +171,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--error", type=float, default=0.3, help="estimation error per executed step, in std devs")
     ap.add_argument("--relax", action="store_true",
                     help="re-plan from bn.relaxed_start (transition 1 at a level it can meet) in the loops")
+    ap.add_argument("--build", action="store_true",
+                    help="in the loops, every re-plan builds its shorter horizon (no resume state)")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", type=Path, default=RESULTS / "stress.json")
     args = ap.parse_args(argv)
@@ -174,7 +180,8 @@ def main(argv: list[str] | None = None) -> None:
                 for a in ("optimal", "uniform")] if args.budget else [{"budget": None}])
     if args.replan:
         cases = [{"family": fam, "map": m, "K": args.K, "method": meth, "alpha": args.alphas[0],
-                  "time_limit": args.time_limit, "replan": args.replan, "error": args.error, "relax": args.relax}
+                  "time_limit": args.time_limit, "replan": args.replan, "error": args.error, "relax": args.relax,
+                  "build": args.build}
                  for spec in args.families for fam, m in _maps(spec) for meth in args.methods]
         run_and_record(run_loop, cases, summarise_loops, args, args.out, args.workers)
         return

@@ -66,7 +66,8 @@ def longer(model: BeliefModel, prefix: int) -> BeliefModel:
 
 
 def frozen(nlp: NLPProblem, model: BeliefModel, offset: int) -> NLPProblem:
-    """``nlp`` (horizon K, the "cholesky" / "logchol" pair) with its first
+    """``nlp`` (horizon K, the "cholesky" / "logchol" pair, or fatrop's
+    stage-ordered form of one: :func:`_frozen_stages`) with its first
     ``offset`` steps frozen at ``model``'s start belief, read as ``model``'s
     problem (horizon K - offset): its pack, unpack, anchor, bounds, cost
     parts and margins are the shorter problem's; z, p, f and g are ``nlp``'s
