@@ -207,8 +207,8 @@ def test_under_a_risk_budget_a_receding_replan_builds_its_horizon(plan10):
     assert bn.verify(moved, r.path).safe and r.risk is not None
 
 
-@pytest.mark.parametrize("offset", [1, 3])
-def test_the_frozen_conic_step_answers_as_the_shorter_horizons_own(plan10, offset):
+@pytest.mark.parametrize("offset, relaxed", [(1, False), (3, False), (2, True)])
+def test_the_frozen_conic_step_answers_as_the_shorter_horizons_own(plan10, offset, relaxed):
     """The longer CCP step with its prefix frozen, at a point of the shorter
     problem, is a step of the shorter problem: its answer (every pair kept,
     and the active-set step's pairs) is proven clear by its certificates,
@@ -217,7 +217,9 @@ def test_the_frozen_conic_step_answers_as_the_shorter_horizons_own(plan10, offse
     holds transition 1's start end in the generic majorised form (its split
     term also weighs the certificates' change), the shorter one exactly
     (C8); both are majorants tight at the point, so CCP's fixed points are
-    the same (the polish test below)."""
+    the same (the polish test below). Also with the start held to its own
+    level (``relaxed``: the relief is the step's parameter at the
+    transition after the prefix)."""
     from belief_nlp.geometry import PolytopeSet
     from belief_nlp.methods.ccp import active_pairs, initial_rho
     from belief_nlp.model.conic_form import conic_step
@@ -226,6 +228,8 @@ def test_the_frozen_conic_step_answers_as_the_shorter_horizons_own(plan10, offse
     sc, previous = plan10
     K = previous.path.K
     moved = _moved(sc, previous, offset, np.random.default_rng(10 + offset))
+    if relaxed:
+        moved = moved.with_options(start_confidence=0.7)
     long_model, short_model = BeliefModel(sc, K, 1.0), BeliefModel(moved, K - offset, 1.0)
     view = frozen_conic(conic_step(long_model.convex_form), short_model.data, offset)
     own = conic_step(short_model.convex_form)
@@ -240,14 +244,16 @@ def test_the_frozen_conic_step_answers_as_the_shorter_horizons_own(plan10, offse
         st_o, z_o, _, _ = own.solve(q, rho, rho, keep)
         assert st_v == st_o == "optimal"
         a, b = view.layout.extract(z_v, q), own.layout.extract(z_o, q)
+        ca_, cb = short_model.cost(short_model.tighten(a))[0], short_model.cost(short_model.tighten(b))[0]
         # two different (equivalent) conic forms solved to Clarabel's tolerances: their means
         # agree to the solver's accuracy, not to the bit (1.5e-5 relative on one mean on an AMD
-        # EPYC host, session 19); 1e-3 scaled units is a thousandth of one step's noise
-        np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-3)          # scaled units: x ~ 10-50
+        # EPYC host, session 19); 1e-3 scaled units is a thousandth of one step's noise. A relaxed
+        # start's first transition rides its level, where the majorants differ most: one step's
+        # means 0.02 apart and its cost 2e-5 (the fixed points agree: test_receding_ccp)
+        np.testing.assert_allclose(a.x, b.x, rtol=0, atol=0.05 if relaxed else 1e-3)   # scaled: x ~ 10-50
+        assert ca_ == pytest.approx(cb, rel=1e-4 if relaxed else 1e-5)
         start, end = short_model.transition_margins(short_model.tighten(a))
         assert min(start.min(), end.min()) >= -1e-6 * short_model.data.chi2
-        ca_, cb = short_model.cost(short_model.tighten(a))[0], short_model.cost(short_model.tighten(b))[0]
-        assert ca_ == pytest.approx(cb, rel=1e-5)
         assert ca_ < short_model.cost(q)[0]               # a step that lowers the cost, not the point itself
 
 

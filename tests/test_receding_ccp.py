@@ -70,6 +70,25 @@ def test_a_ccp_loop_solves_the_longer_step_frozen(ccp10):
         assert r.cost == pytest.approx(ref.cost, rel=1e-6)
 
 
+def test_a_relaxed_replan_solves_the_longer_step_frozen(ccp10):
+    """A start held to its own level (start_confidence) after executed
+    steps: the relief is the longer step's parameter at the transition after
+    the prefix, so the re-plan runs on the K = 10 step, verified at its
+    levels, at the cost of the re-plan that builds its horizon (1e-6)."""
+    sc, previous = ccp10
+    MEMORY.clear()
+    _built(sc, previous.path.K)
+    rng = np.random.default_rng(5)
+    for step in range(1, 3):
+        moved = _moved(sc, previous, rng).with_options(start_confidence=0.7)
+        r = bn.replan(moved, previous, advance=1, **KW)
+        assert r.stats["frozen"] == step and _own_step(moved, previous.path.K - 1) is None
+        assert r.status == "converged" and bn.verify(moved, r.path).safe and r.cost <= r.initial_cost
+        ref = bn.replan(moved, dataclasses.replace(previous, resume=None), advance=1, **KW)
+        assert ref.stats["frozen"] == 0 and r.cost == pytest.approx(ref.cost, rel=1e-6)
+        previous = r
+
+
 def test_when_the_frozen_step_fails_ccp_goes_on_with_the_horizons_own(ccp10, monkeypatch):
     """The frozen step has no CVXPY cascade behind it: when neither of its
     answers comes, the run goes on from its last point with the shorter

@@ -152,6 +152,24 @@ def test_a_resumed_relaxed_replan_is_the_built_horizons_answer(case):
     assert bn.verify(now, resumed.path).safe and bn.verify(now, built.path).safe
 
 
+def test_a_relaxed_ccp_replan_takes_the_relief_on_the_longer_step(case):
+    """ccp after an executed step, from a start only its relief clears: the
+    longer horizon's conic step, frozen, carries the relief at the
+    transition after the prefix, and reaches the answer of the step built
+    for the shorter horizon; both verified at the levels the scenario states."""
+    sc, res, x, P, _ = case
+    prev = bn.smooth(sc, res.path, method="ccp")
+    now = bn.relaxed_start(sc, x, P, previous=prev, advance=1)
+    with pytest.raises(bn.ValidationError):              # at the scenario's level the start is not clear
+        now.with_options(start_confidence=None)
+    frozen_run = bn.replan(now, prev, advance=1, method="ccp")
+    built = bn.replan(now, prev.path, advance=1, method="ccp")
+    assert frozen_run.stats["frozen"] == 1 and built.stats["frozen"] == 0
+    assert frozen_run.success and built.success
+    assert frozen_run.cost == pytest.approx(built.cost, rel=1e-6)
+    assert bn.verify(now, frozen_run.path).safe and bn.verify(now, built.path).safe
+
+
 @pytest.mark.parametrize("changes, field, text", [
     ({"start_confidence": 0.95}, "start.confidence", "above the scenario's own level"),
     ({"start_confidence": 1.0}, "start.confidence", "strictly between 0 and 1"),

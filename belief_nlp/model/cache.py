@@ -49,8 +49,9 @@ log = logging.getLogger("belief_nlp.cache")
 
 # bump when the model's structure changes in a way the versions do not show
 # (5: alpha became a parameter of every form and left the key; 6: entries compressed;
-# 7: the start belief became a parameter of every form and left the key)
-MODEL_REVISION = 7
+# 7: the start belief became a parameter of every form and left the key;
+# 8: the CCP step's start relief became one parameter per transition)
+MODEL_REVISION = 8
 
 #: environment variable that switches the disk cache on for a process: a
 #: folder, or "1" for the user's cache folder (:func:`default_cache_dir`)

@@ -19,7 +19,9 @@ step already holds far pairs:
   same, so each step is safe and monotone and CCP's fixed points are the
   shorter step's, but a step's answer differs a little (means within 1e-5
   relative in the tests);
-- the prefix's objective terms are constants.
+- the prefix's objective terms are constants;
+- a start held to its own level (``Scenario.start_confidence``) puts its
+  relief on the step's level parameter of transition offset + 1.
 
 Not under a risk budget or the continuous-time surrogate (their levels and
 T_k depend on the horizon). ``tests/test_receding.py`` holds its answer to
@@ -103,9 +105,9 @@ def frozen_conic(step: ConicStep, D: ProblemData, offset: int) -> FrozenConic:
     Dt, B = L.data, L.blocks
     K = Dt.K
     if not 0 < offset < K or D.K != K - offset or B.ell is not None or D.budget is not None \
-            or Dt.continuous or D.continuous or D.relief:
+            or Dt.continuous or D.continuous:
         raise ValidationError("resume", f"a conic step of {K} steps cannot be read as {D.K} steps with {offset} "
-                                        f"frozen (plain steps only, the start at the scenario's own level)")
+                                        f"frozen (plain steps only)")
     P_inv = np.linalg.inv(D.P0)
     P_inv = 0.5 * (P_inv + P_inv.T)
     cols = np.zeros(B.n, bool)
@@ -113,7 +115,8 @@ def frozen_conic(step: ConicStep, D: ProblemData, offset: int) -> FrozenConic:
         cols[imap[imap >= 0]] = True
     cone_step = step.cones[5]
     cones = (cone_step >= 1) & (cone_step <= offset)
-    start = step_start_values(D)
+    # the shorter problem's start relief at its transition 1, the step's offset + 1
+    start = step_start_values(D, K, at=offset)
     start[D.d:D.d + D.d * D.d] = P_inv.ravel(order="F")      # Q_1 = P0^-1: the prefix sees the start belief
     solver_step = replace(step, layout=_FrozenStart(Dt, B, start, D.alpha))
     return FrozenConic(solver_step, _ShortLayout(D, B, L, offset, P_inv), (cols, cones))

@@ -163,13 +163,17 @@ def _pair_function(d: int, F: int, n_quad: int = 0) -> ca.Function:
                        [ca.vec(h1), _rsoc(-h2_lin, ca.vertcat(r * dv - (x - xt) / r, q))])
 
 
-def step_start_values(D: ProblemData) -> np.ndarray:
+def step_start_values(D: ProblemData, K: int | None = None, at: int = 0) -> np.ndarray:
     """The start belief of ``D`` as the CCP step's parameters: x0, Q1,
     L0 / eps0, eps0^2 (:func:`start_factor`), T2 (matrices column-major) and
-    the start's relief chi2 - chi2_start."""
+    each transition's relief off chi2: the start's chi2 - chi2_start at
+    transition ``at`` + 1 (the first; a frozen prefix's step of ``K``
+    transitions puts it after the prefix, :mod:`.conic_prefix`), 0 elsewhere."""
     L0, eps0 = start_factor(D.P0)
+    relief = np.zeros(D.K if K is None else K)
+    relief[at] = D.relief
     return np.concatenate([D.x0, D.Q1.ravel(order="F"), (L0 / eps0).ravel(order="F"), [eps0**2],
-                           D.T2.ravel(order="F"), [D.relief]])
+                           D.T2.ravel(order="F"), relief])
 
 
 def start_factor(P0: np.ndarray) -> tuple[np.ndarray, float]:
@@ -355,10 +359,12 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7, proximal: float = 0.0
     else:
         Lev, Quad = ca.DM.ones(K, J) * chi2, []
 
-    start = ca.vertsplit(parts[-2], list(np.cumsum([0, d, d * d, d * d, 1, d * d, 1])))
+    start = ca.vertsplit(parts[-2], list(np.cumsum([0, d, d * d, d * d, 1, d * d, K])))
     x0, Q1, L0s, eps0_sq, T2 = start[0], ca.reshape(start[1], d, d), ca.reshape(start[2], d, d), start[3], \
         ca.reshape(start[4], d, d)
-    relief = start[5] * (1.0 + chi2_margin)            # transition 1's level: chi2_start (1 + chi2_margin)
+    # each transition's relief off its level (the start's own level chi2_start (1 + chi2_margin)
+    # at transition 1, or after a frozen prefix; step_start_values)
+    relief = start[5] * (1.0 + chi2_margin)
     X = [x0] + [xt[:, k] + _pick(z, B.x[k][:, None]) for k in range(1, K + 1)]
     Q = [None, Q1] + [_pick(z, B.Q[k]) for k in range(2, K + 1)]
     S = [None] + [_pick(z, B.S[k]) for k in range(1, K + 1)]
@@ -441,9 +447,7 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7, proximal: float = 0.0
         b = ca.DM(D.b[jj].T)
         r = ca.sqrt((rho_e if end else rho_s)[((kk - 1) * J + jj).tolist()]).T
         pick = ((kk - 1) * J + jj).tolist()
-        lev = ca.vec(Lev.T)[pick].T
-        if end:                                        # transition 1's end: at the start's level too
-            lev = lev - relief * ca.DM((kk == 1).astype(float)).T
+        lev = ca.vec(Lev.T)[pick].T - relief[(kk - 1).tolist()].T     # the start's transition: its level
         quad = ca.vertcat(*[ca.vec(qq.T)[pick].T for qq in Quad]) if Quad else ca.SX(0, nb)
         h1, h2 = pair.map(nb)(lam, lt, R, x, xt[:, kx.tolist()], Yv + Yc, A, b, r, lev, quad)
         owner = (kk - 1) * J + jj
@@ -460,7 +464,7 @@ def convex_form(D: ProblemData, chi2_margin: float = 2e-7, proximal: float = 0.0
         A, b = ca.DM(D.A[j]), ca.DM(D.b[j])
         lam = Lam[0][j]
         R0 = z[int(B.R0[j])]
-        w = terms.bilinear(lam, X[0], A, b) - (Lev[0, j] - relief) - eps0_sq * R0
+        w = terms.bilinear(lam, X[0], A, b) - (Lev[0, j] - relief[0]) - eps0_sq * R0
         h2_first.append(_rsoc(w, ca.vertcat(*[qq[0, j] for qq in Quad])) if Quad else w)
         h1_first.append(terms.h1_lmi(R0, ca.mtimes(L0s.T, ca.mtimes(A.T, lam)), ca.DM.eye(d)))
     first = np.arange(len(h2_first))                   # pairs (1, j)
