@@ -115,8 +115,11 @@ def run_loop(case: dict) -> dict:
         except Exception as exc:                         # InfeasibleStartError ends a loop; anything else too
             ended = type(exc).__name__
             break
+        st = nxt.stats.get("ipopt", nxt.stats)              # auto: its NLP stage's
         steps.append({"status": nxt.status, "verified": bool(bn.verify(now, nxt.path).safe),
-                      "wall_s": round(time.perf_counter() - t, 4), "start_confidence": now.start_confidence})
+                      "wall_s": round(time.perf_counter() - t, 4), "start_confidence": now.start_confidence,
+                      # what the re-plan ran on: the NLP state's graph, the frozen conic step
+                      "resumed": st.get("resumed"), "frozen": nxt.stats.get("ccp", nxt.stats).get("frozen")})
         cur = nxt
     return rec | {"replans": len(steps), "ended": ended, "start_not_clear": not_clear, "relaxed": relaxed,
                   "verified": all(s["verified"] for s in steps), "steps": steps}
