@@ -192,7 +192,8 @@ def replan(scenario: Scenario, previous: SmoothResult | BeliefPath | WarmStart, 
         the horizon).
     method, **kwargs
         As :func:`belief_nlp.smooth` (``K`` is the re-anchored path's and
-        may not be given).
+        may not be given); ``resume=None`` ignores ``previous``'s state and
+        builds the shorter horizon.
 
     Returns
     -------
