@@ -315,11 +315,10 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
         before = direct = stepped = None
         reentered = 0
         polish_opts = backend.options(problem.solver_options, problem.tol, "polish")
-        ours = fits and nlp_resume.matches(resume, backend.plugin, key, floor) \
+        matched = fits and nlp_resume.matches(resume, backend.plugin, key, floor) \
             and nlp_resume.has_duals(resume) == backend.warm_duals
-        # without multipliers: the usual stages from the warm start, on the state's graph (nothing built)
-        on_graph = ours and not backend.warm_duals
-        ours = ours and backend.warm_duals
+        ours = matched and backend.warm_duals            # IPOPT: resumed from the variables and multipliers
+        on_graph = matched and not backend.warm_duals    # fatrop, Uno: the usual stages on the state's graph
         skip = int(resume.get("polish_skip", 0)) if ours and polish_retry else 0
         if ours and polish and resume.get("polish"):
             # the last polish's answer and multipliers: that stage alone, when it ends converged and safe

@@ -40,7 +40,7 @@ def log_dir(tag: str) -> str:
     """This process's folder ``belief_nlp_<tag>_<pid>_*`` in the temporary
     directory, made on first use (after sweeping stale ones) and removed at exit."""
     found = _DIRS.get(tag)
-    # a forked child inherits the parent's folder, which the parent removes
+    # (a forked child shares its parent's folder, and makes its own once that is gone)
     if found is None or not os.path.isdir(found):
         sweep_stale(tag)
         found = tempfile.mkdtemp(prefix=f"belief_nlp_{tag}_{os.getpid()}_")
