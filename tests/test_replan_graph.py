@@ -75,7 +75,8 @@ def test_the_frozen_stage_form_is_the_shorter_problems_form(hand10, offset, rela
 @pytest.mark.parametrize("method", METHODS)
 def test_a_receding_loop_builds_nothing_and_answers_as_the_built_horizon(hand10, method):
     """Three executed steps, one at a time: each re-plan is solved on the
-    K = 10 graph (nothing built) and gives the answer of the re-plan that
+    K = 10 graph (the first builds its solver with the backend's resume
+    options, if it has any; the later ones build nothing) and gives the answer of the re-plan that
     builds its shorter horizon from the same warm start (the same local
     optimum to the polish's tolerance), verified, not above its warm start."""
     sc, path = hand10
@@ -88,7 +89,9 @@ def test_a_receding_loop_builds_nothing_and_answers_as_the_built_horizon(hand10,
         r = bn.replan(moved, previous, advance=1, **kw)
         ref = bn.replan(moved, dataclasses.replace(previous, resume=None), advance=1, **kw)
         assert r.stats["resumed"] == "graph" and ref.stats["resumed"] == "no"
-        assert r.stats["build"] == "memory" and ref.stats["build"] != "memory"
+        # the K = 10 graph's solver with the backend's resume options: built once, by the first
+        assert r.stats["build"] == "memory" or step == 1
+        assert ref.stats["build"] != "memory"
         assert r.safe and bn.verify(moved, r.path).safe and r.cost <= r.initial_cost
         assert r.path.K == path.K - step and r.resume["offset"] == step
         np.testing.assert_allclose(r.path.x[0], moved.x0, rtol=1e-15, atol=0)

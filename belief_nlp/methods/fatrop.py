@@ -47,6 +47,14 @@ DEFAULT_FATROP_OPTIONS: dict[str, Any] = {
 #: more iterations at K = 20 and failed 4 others)
 RESCUE_FATROP_OPTIONS: dict[str, Any] = {"mu_init": 1e-3}
 
+#: a re-plan's first stage from the re-anchored last answer, on its graph
+#: (fatrop takes no multipliers to resume from): a small first barrier keeps
+#: it near that answer instead of pushing it into the interior. Loops on
+#: paper-multi (session 29, 3-4 seeds x 5 re-plans): median 0.35 -> 0.18 s at
+#: K = 20 and 1.9-3.5 -> 0.32-0.35 s at K = 40 (1e-4 failed 4 of 15 at K = 40;
+#: docs/numerics.md, "fatrop")
+RESUME_FATROP_OPTIONS: dict[str, Any] = {"mu_init": 1e-5}
+
 #: fatrop's print level that writes a line per iteration: the watchdog's
 #: heartbeat (:mod:`.nlp_guarded`); the user's ``print_level`` > 0 shows them
 _HEARTBEAT_LEVEL = 5
@@ -129,6 +137,7 @@ class FatropBackend(NLPBackend):
     stage_options = {"rescue": RESCUE_FATROP_OPTIONS}
     plugin = "fatrop"
     defaults = DEFAULT_FATROP_OPTIONS
+    resume_options = RESUME_FATROP_OPTIONS
     calls_back = False          # the plug-in never calls CasADi's iteration_callback (measured)
 
     def form(self, nlp: NLPProblem) -> OCPProblem:

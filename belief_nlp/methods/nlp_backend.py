@@ -49,8 +49,9 @@ class NLPBackend:
     #: lam_g0 of the same NLP graph); the plug-in's "polish" stage options
     #: then say how it uses them (IPOPT: warm_start_init_point)
     warm_duals = False
-    #: options of a first stage resumed from an earlier answer's variables and
-    #: multipliers (the engine's ``resume``; backends with ``warm_duals``)
+    #: options of a first stage resumed from an earlier answer (the engine's
+    #: ``resume``): from its variables and multipliers (backends with
+    #: ``warm_duals``), or from the re-anchored answer on its graph (the others)
     resume_options: dict = {}
     #: whether the plug-in calls CasADi's ``iteration_callback`` every
     #: iteration. One that does not (fatrop) gets its stage budget as its own

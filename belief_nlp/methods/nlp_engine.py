@@ -336,17 +336,20 @@ def run_nlp(problem: SmoothingProblem, backend: NLPBackend, *, formulation: str 
             # the usual stage from the warm start: on the frozen graph when the
             # resumed solve ran there or the state has no multipliers (nothing
             # built), else on the problem's own
-            usual = dict(formulation=formulation, floor=floor, opts=opts, rescue=rescue_opts, start=problem.start,
+            usual = dict(formulation=formulation, floor=floor, rescue=rescue_opts, start=problem.start,
                          max_iter=max_iter - (before.used if before else 0), restarts=restarts,
                          offset=problem.iterations, scale=scale_means, **common)
-            first = _frozen_stage(problem, backend, prefix=prefix, **usual) \
+            # from the re-anchored answer on its graph: the backend's resume options
+            graph_opts = _with_resume_options(backend, opts, first_opts) if on_graph else opts
+            first = _frozen_stage(problem, backend, prefix=prefix, opts=graph_opts, **usual) \
                 if prefix and (before is not None or on_graph) else None
             if first is None:
                 if prefix:                       # the problem's own graph
                     if on_graph:                 # (the prefix cannot be frozen at this start)
                         on_graph, resumed = False, "does not fit"
                     prefix, key = 0, _base_key(problem.model, formulation, margin, regularisation)
-                first = _solve_stage(problem, backend, Stage(), prefix=0, **usual)
+                first = _solve_stage(problem, backend, Stage(), prefix=0, opts=graph_opts if on_graph else opts,
+                                     **usual)
             if on_graph:
                 resumed = "graph"
             if before is not None:       # one stage in the stats: the resumed solve, then the usual one
