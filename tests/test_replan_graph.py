@@ -78,7 +78,7 @@ def test_a_receding_loop_builds_nothing_and_answers_as_the_built_horizon(hand10,
     K = 10 graph (the first builds its solver with the backend's resume
     options, if it has any; the later ones build nothing) and gives the answer of the re-plan that
     builds its shorter horizon from the same warm start (the same local
-    optimum to the polish's tolerance), verified, not above its warm start."""
+    optimum to the solver's accuracy), verified, not above its warm start."""
     sc, path = hand10
     kw = {"method": method, "alpha": 1.0, "max_iter": 3000}
     previous = bn.smooth(sc, bn.warm_start(sc, path), **kw)
@@ -96,7 +96,11 @@ def test_a_receding_loop_builds_nothing_and_answers_as_the_built_horizon(hand10,
         assert r.path.K == path.K - step and r.resume["offset"] == step
         np.testing.assert_allclose(r.path.x[0], moved.x0, rtol=1e-15, atol=0)
         if r.status == ref.status == "converged":
-            assert r.cost == pytest.approx(ref.cost, rel=1e-5)
+            # the same local optimum to the solver's accuracy: Uno's to 1e-5; fatrop stops up to
+            # 0.15-1 % above IPOPT's optimum at its tolerance (docs/numerics.md, "fatrop"), and two
+            # of its converged answers from one start differed by 9e-4 once (a clean-clone CI run)
+            assert r.cost == pytest.approx(ref.cost, rel=1e-5 if method == "sqp" else 1e-2), \
+                (r.stats["attempts"], ref.stats["attempts"])
         previous = r
 
 
