@@ -123,3 +123,32 @@ def test_the_resume_check_takes_a_bare_state_only_without_a_polish():
     assert nlp_resume.check(full) is None and nlp_resume.has_duals(full)
     assert nlp_resume.check({**bare, "polish": full["polish"]}) is not None
     assert nlp_resume.check({**full, "lam_g": None}) is not None          # one multiplier without the other
+
+
+@pytest.mark.skipif("fatrop" not in METHODS, reason="this CasADi build has no fatrop plug-in")
+def test_fatrops_graph_replan_takes_its_resume_options_unless_the_user_sets_them(hand10, monkeypatch):
+    """The first stage of a graph re-plan is built with fatrop's resume
+    options (a small first barrier); a user's first-stage option wins (the
+    cold stage's solver then serves, nothing built); the cold smooth before
+    it keeps fatrop's defaults."""
+    from belief_nlp.methods import fatrop
+    from belief_nlp.methods.nlp_build import clear_cache
+
+    built = []
+    plain = type(fatrop.FATROP).nlpsol
+
+    def nlpsol(self, name, nlp, options):
+        built.append(options["fatrop"].get("mu_init"))
+        return plain(self, name, nlp, options)
+    monkeypatch.setattr(type(fatrop.FATROP), "nlpsol", nlpsol)
+    sc, path = hand10
+    for user, expected in (({}, [fatrop.RESUME_FATROP_OPTIONS["mu_init"]]), ({"mu_init": 1e-2}, [])):
+        clear_cache()
+        built.clear()
+        kw = {"method": "fatrop", "alpha": 1.0, "first_stage_options": user or None}
+        previous = bn.smooth(sc, bn.warm_start(sc, path), **kw)
+        assert built[0] == user.get("mu_init")                     # the cold first stage: fatrop's own default
+        built.clear()
+        moved = _moved(sc, previous.path, 1, np.random.default_rng(2))
+        r = bn.replan(moved, previous, advance=1, **kw)
+        assert r.stats["resumed"] == "graph" and built[:1] == expected
