@@ -9,7 +9,6 @@ import os
 os.environ["BELIEF_NLP_CACHE_DIR"] = "0"
 os.environ["BELIEF_NLP_CACHE_COMPILE"] = "0"
 
-import casadi as ca  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from hypothesis import settings  # noqa: E402
@@ -58,8 +57,16 @@ def perturbed(model, z0, rng):
 
 def _rows(form, zv, pv) -> np.ndarray:
     """A form's rows at (z, p), in its source NLP's order."""
+    import casadi as ca
+
     g = np.asarray(ca.Function("g", [form.z, form.p], [form.g])(zv, pv)).ravel()
     return form.source_g(g) if hasattr(form, "source_g") else g
+
+
+def _objective(form, zv, pv) -> float:
+    import casadi as ca
+
+    return float(ca.Function("f", [form.z, form.p], [form.f])(zv, pv))
 
 
 def assert_frozen_is_shorter(view, short, model, z0, rng, points: int = 3) -> list:
@@ -81,8 +88,7 @@ def assert_frozen_is_shorter(view, short, model, z0, rng, points: int = 3) -> li
         lbv, lbs = (f.source_g(f.lbg) if hasattr(f, "source_g") else f.lbg for f in (view, short))
         n = short.n_collision + short.info["n_target"]
         np.testing.assert_allclose(gv[:n] - lbv[:n], gs[:n] - lbs[:n], rtol=1e-7, atol=1e-7)
-        gaps.append(float(ca.Function("f", [view.z, view.p], [view.f])(zv, pv))
-                    - float(ca.Function("f", [short.z, short.p], [short.f])(zs, ps)))
+        gaps.append(_objective(view, zv, pv) - _objective(short, zs, ps))
         np.testing.assert_allclose(view.unpack(zv).x, q.x, rtol=0, atol=1e-12)
         out.append((q, zv, gv, gs))
     assert np.ptp(gaps) < 1e-10 * max(1.0, abs(gaps[0]))
